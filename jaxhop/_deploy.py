@@ -1,0 +1,89 @@
+"""Deployment by backchaining (Fig. 7): a total order over instantiated policies."""
+
+from __future__ import annotations
+
+import heapq
+from collections.abc import Callable
+
+import numpy as np
+import scipy.sparse as sp
+
+
+def by_safety(safety: np.ndarray, depth: np.ndarray) -> np.ndarray:
+    """Default `pickbest`: highest safety first."""
+    return -safety
+
+
+def by_depth(safety: np.ndarray, depth: np.ndarray) -> np.ndarray:
+    """`pickbest` preferring fewest steps to the goal, then safety."""
+    return depth * 1e6 - safety
+
+
+def deploy(
+    p: sp.csr_matrix,
+    situated: np.ndarray,
+    safety: np.ndarray,
+    is_goal: np.ndarray,
+    pickbest: Callable[[np.ndarray, np.ndarray], np.ndarray] = by_safety,
+) -> np.ndarray:
+    """Order instantiated policies by backchaining from the goal policies.
+
+    A priority queue starts with the goal policies; the best policy is moved to the order,
+    and every unused policy that prepares it (its goal lies in the domain of the moved
+    policy's situated policy) joins the queue.
+
+    Arguments:
+        p: `P[a, s] = [Zg(a) ∈ D(s)]` (see `_graph`).
+        situated: `(n,)` situated policy of each instantiated policy.
+        safety: `(n,)` safety of each (eq 34).
+        is_goal: `(n,)` which are goal policies.
+        pickbest: maps `(safety, depth)` to a priority key, smallest first. `depth` is the
+            number of strides to the goal along the backchain.
+
+    Returns:
+        The deployed policies, in order.
+    """
+    preparers = p.tocsc()
+    n = situated.shape[0]
+    depth = np.full(n, np.iinfo(np.int64).max, dtype=np.int64)
+    queued = np.zeros(n, dtype=bool)
+    expanded = np.zeros(p.shape[1], dtype=bool)
+    heap: list[tuple[float, int]] = []
+    goals = np.nonzero(is_goal)[0]
+    depth[goals] = 1
+    keys = pickbest(safety, np.where(is_goal, 1, 0))
+    for a in goals:
+        heapq.heappush(heap, (float(keys[a]), int(a)))
+        queued[a] = True
+    order = []
+    while heap:
+        _, b = heapq.heappop(heap)
+        order.append(b)
+        s = situated[b]
+        if expanded[s]:
+            continue
+        expanded[s] = True
+        col = preparers.indices[preparers.indptr[s]:preparers.indptr[s + 1]]
+        new = col[~queued[col]]
+        if new.size == 0:
+            continue
+        queued[new] = True
+        depth[new] = depth[b] + 1
+        keys_new = pickbest(safety[new], depth[new])
+        for key, a in zip(keys_new, new):
+            heapq.heappush(heap, (float(key), int(a)))
+    return np.asarray(order, dtype=np.int64)
+
+
+def check_order(order: np.ndarray, p: sp.csr_matrix, situated: np.ndarray,
+                is_goal: np.ndarray) -> bool:
+    """The deployment invariant: every non-goal policy prepares some earlier policy."""
+    seen = np.zeros(p.shape[1], dtype=bool)
+    p = p.tocsr()
+    for a in order:
+        if not is_goal[a]:
+            targets = p.indices[p.indptr[a]:p.indptr[a + 1]]
+            if not np.any(seen[targets]):
+                return False
+        seen[situated[a]] = True
+    return True

@@ -1,0 +1,234 @@
+"""Reactive execution (Fig. 8), disturbances (section VI-C) and domain-of-attraction sweeps.
+
+`run_one` handles one initial apex; `run_batch` vmaps it and splits the batch over the
+visible JAX devices (one chunk per device, dispatched asynchronously).
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from tqdm.auto import tqdm
+
+from ._bhop import ascent, deadbeat_bhop, stance
+from ._flight import (
+    COLLISION,
+    FAILURE_NAMES,
+    MAX_STEPS,
+    OK,
+    OUTSIDE_DOMAIN,
+    RUNNING,
+    SOLVER,
+    SUCCESS,
+    liftoff_clear,
+    touchdown,
+)
+from ._params import Disturbance, Hopper
+from ._plan import Plan, PlanTables
+from ._policies import candidate_situated
+from ._terrain import Terrain
+
+
+def bhop_stride(apex, u, terrain: Terrain, hopper: Hopper, wind=0.0):
+    """One BHop stride on the terrain: descent, touchdown, stance, rise to the next apex.
+
+    Returns:
+        `(next_apex, code, foothold)`: `code` is `OK` or a failure; `foothold = (y, h)`.
+    """
+    code, block, _, y_foot, v_td = touchdown(apex, jnp.array([0.0, -hopper.rho0]), terrain,
+                                             hopper, wind)
+    h = terrain.heights[block]
+    y_lo, v_lo = stance(y_foot, v_td, u)
+    clear = liftoff_clear(y_foot, y_lo, v_lo, h, terrain, hopper, wind)
+    nxt = ascent(y_lo, v_lo, h, hopper, wind)
+    code = jnp.where(code == OK, jnp.where(clear, OK, COLLISION), code)
+    return nxt, code, jnp.stack([y_foot, h])
+
+
+def first_match(apex, tables: PlanTables, hopper: Hopper):
+    """The first deployed policy whose domain contains `apex`.
+
+    Only the first deployed instantiated policy of each situated policy can ever be the
+    first match (they share a domain), so the order reduces to `best_pos` per situated
+    policy; the situated candidates are those on the segment of the nominal touchdown.
+
+    Returns:
+        `(found, situated, instantiated)`.
+    """
+    ids, inside = candidate_situated(apex, tables.table, tables.templates, tables.terrain,
+                                     hopper)
+    big = jnp.iinfo(jnp.int32).max
+    pos = jnp.where(inside, tables.best_pos[ids], big)
+    k = jnp.argmin(pos)
+    found = pos[k] < big
+    return found, ids[k], tables.best_inst[ids[k]]
+
+
+def decide(apex, tables: PlanTables, hopper: Hopper):
+    """Controls for one measured apex: first match, deadbeat to its goal, clip to its limits.
+
+    Returns:
+        `(found, u, instantiated)`.
+    """
+    found, s, a = first_match(apex, tables, hopper)
+    nt = tables.templates.n
+    tmpl = tables.templates.row(s % nt)
+    h = tables.table.centre[s // nt, 1]
+    u = deadbeat_bhop(apex, tables.goals[a], h, hopper)
+    lo = jnp.stack([tmpl.dy_lo, tmpl.th_lo, tmpl.k_lo])
+    hi = jnp.stack([tmpl.dy_hi, tmpl.th_hi, tmpl.k_hi])
+    u = jnp.where(jnp.isfinite(u), u, hi)
+    return found, jnp.clip(u, lo, hi), a
+
+
+class RunConfig(eqx.Module):
+    """Execution settings."""
+
+    goal: jnp.ndarray
+    tolerance: jnp.ndarray = eqx.field(default_factory=lambda: jnp.full(3, 0.05))
+    max_steps: int = eqx.field(static=True, default=60)
+
+
+def run_one(apex0, key, tables: PlanTables, true_terrain: Terrain, hopper: Hopper,
+            disturbance: Disturbance, config: RunConfig):
+    """Run the reactive controller from one initial apex until success or failure.
+
+    The controller sees the apex plus sensor noise (fresh at every apex, from `key`); the
+    stride runs on `true_terrain` with the disturbance's wind.
+
+    Returns:
+        `(code, steps, apexes, footholds, policies)`: result code, strides taken, the
+        `(max_steps + 1, 3)` apex sequence (NaN after the end), `(max_steps, 2)` footholds and
+        the instantiated policy used at each stride (-1 after the end).
+    """
+    def step(carry, k):
+        apex, code, steps = carry
+        running = code == RUNNING
+        at_goal = jnp.all(jnp.abs(apex - config.goal) <= config.tolerance)
+        noise = jax.random.uniform(jax.random.fold_in(key, k), (3,), minval=-1.0, maxval=1.0)
+        measured = apex + noise * disturbance.sensor
+        found, u, a = decide(measured, tables, hopper)
+        nxt, s_code, foot = bhop_stride(apex, u, true_terrain, hopper, disturbance.wind)
+        s_code = jnp.where(jnp.all(jnp.isfinite(nxt)) | (s_code != OK), s_code, SOLVER)
+        new_code = jnp.where(at_goal, SUCCESS, jnp.where(~found, OUTSIDE_DOMAIN,
+                                                         jnp.where(s_code == OK, RUNNING,
+                                                                   s_code)))
+        stepping = running & ~at_goal & found
+        code = jnp.where(running, new_code, code)
+        apex = jnp.where(stepping & (s_code == OK), nxt, apex)
+        steps = steps + stepping.astype(jnp.int32)
+        out = (jnp.where(stepping & (s_code == OK), nxt, jnp.nan),
+               jnp.where(stepping, foot, jnp.nan), jnp.where(stepping, a, -1))
+        return (apex, code, steps), out
+
+    init = (jnp.asarray(apex0, float), jnp.asarray(RUNNING), jnp.asarray(0, jnp.int32))
+    (apex, code, steps), (apexes, feet, used) = jax.lax.scan(
+        step, init, jnp.arange(config.max_steps))
+    at_goal = jnp.all(jnp.abs(apex - config.goal) <= config.tolerance)
+    code = jnp.where(code == RUNNING, jnp.where(at_goal, SUCCESS, MAX_STEPS), code)
+    apexes = jnp.concatenate([jnp.asarray(apex0, float)[None], apexes])
+    return code, steps, apexes, feet, used
+
+
+def _batch(apex0, keys, tables, true_terrain, hopper, disturbance, config):
+    return jax.vmap(run_one, (0, 0, None, None, None, None, None))(
+        apex0, keys, tables, true_terrain, hopper, disturbance, config)
+
+
+_batch_jit = jax.jit(_batch)
+
+
+def in_global_domain(apexes, tables: PlanTables, hopper: Hopper) -> np.ndarray:
+    """Which apexes lie in the union of the deployed policies' domains."""
+    found = jax.jit(jax.vmap(lambda z: first_match(z, tables, hopper)[0]))(jnp.asarray(apexes))
+    return np.asarray(found)
+
+
+def run_batch(plan: Plan, apex0, *, key=None, true_terrain: Terrain | None = None,
+              disturbance: Disturbance | None = None, goal=None, max_steps: int = 60,
+              chunk: int = 1024, progress: bool = False):
+    """Run many initial apexes through the reactive controller.
+
+    The batch is padded to a multiple of `chunk` (fixed shapes: one compilation) and the
+    chunks are dispatched to all visible devices round-robin, asynchronously.
+
+    Returns:
+        dict of NumPy arrays: `code, steps, apexes, footholds, policies`.
+    """
+    apex0 = np.atleast_2d(np.asarray(apex0, float))
+    n = apex0.shape[0]
+    key = jax.random.key(0) if key is None else key
+    keys = jax.random.split(key, max(n, 1))
+    tables = plan.tables()
+    true_terrain = plan.terrain if true_terrain is None else true_terrain
+    disturbance = Disturbance() if disturbance is None else disturbance
+    config = RunConfig(goal=jnp.asarray(plan.goal if goal is None else goal, float),
+                       max_steps=max_steps)
+    chunk = int(min(chunk, max(n, 1)))
+    devices = jax.devices()
+    pending = []
+    for i, start in enumerate(range(0, n, chunk)):
+        idx = np.arange(start, start + chunk).clip(max=n - 1)
+        dev = devices[i % len(devices)]
+        args = jax.device_put((jnp.asarray(apex0[idx]), keys[idx]), dev)
+        pending.append((start, min(start + chunk, n),
+                        _batch_jit(*args, tables, true_terrain, plan.hopper, disturbance, config)))
+    parts = {k: [] for k in ("code", "steps", "apexes", "footholds", "policies")}
+    bar = tqdm(total=n, desc="runs", unit="run", disable=not progress, file=sys.stderr,
+               leave=False)
+    for start, stop, out in pending:
+        for name, arr in zip(parts, out):
+            parts[name].append(np.asarray(arr)[: stop - start])
+        bar.update(stop - start)
+    bar.close()
+    return {k: np.concatenate(v) for k, v in parts.items()}
+
+
+def sweep_grid(terrain: Terrain, ydot0: float = 0.5, dy: float = 0.05, dz: float = 0.05,
+               z_range: tuple[float, float] | None = None) -> np.ndarray:
+    """Initial apex states on a grid in `(y, z)` over the terrain (SPEC section 12)."""
+    y0, y1 = terrain.y_range
+    h = np.asarray(terrain.heights)
+    if z_range is None:
+        z_range = (float(h.min()) + 1.0, float(h.max()) + 2.6)
+    ys = np.arange(y0, y1 + 1e-9, dy)
+    zs = np.arange(z_range[0], z_range[1] + 1e-9, dz)
+    Y, Z = np.meshgrid(ys, zs, indexing="ij")
+    return np.stack([Y.ravel(), Z.ravel(), np.full(Y.size, ydot0)], axis=1)
+
+
+def summarize(result: dict, seconds: float) -> dict:
+    """SPEC section 15 sweep keys."""
+    code, steps = result["code"], result["steps"]
+    n = int(code.size)
+    ok = code == SUCCESS
+    return {
+        "n_initial_conditions": n,
+        "success_rate": float(ok.mean()) if n else 0.0,
+        "mean_steps": float(steps[ok].mean()) if ok.any() else 0.0,
+        "max_steps": int(steps[ok].max()) if ok.any() else 0,
+        "failures": {name: int((code == i + 1).sum()) for i, name in enumerate(FAILURE_NAMES)},
+        "seconds": round(seconds, 3),
+    }
+
+
+def sweep(plan: Plan, *, initial=None, key=None, true_terrain: Terrain | None = None,
+          disturbance: Disturbance | None = None, ydot0: float = 0.5, dy: float = 0.05,
+          dz: float = 0.05, max_steps: int = 60, progress: bool = False):
+    """Domain-of-attraction sweep: run every grid state inside the global domain.
+
+    Returns:
+        `(summary, initial_states, result)`.
+    """
+    t0 = time.perf_counter()
+    if initial is None:
+        grid = sweep_grid(plan.terrain, ydot0, dy, dz)
+        initial = grid[in_global_domain(grid, plan.tables(), plan.hopper)]
+    result = run_batch(plan, initial, key=key, true_terrain=true_terrain,
+                       disturbance=disturbance, max_steps=max_steps, progress=progress)
+    return summarize(result, time.perf_counter() - t0), initial, result
