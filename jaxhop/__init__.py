@@ -1,4 +1,8 @@
-"""jaxhop: reactive footstep planning for spring-mass hopping on rough terrain, in JAX."""
+"""jaxhop: reactive footstep planning for spring-mass hopping on rough terrain, in JAX.
+
+The pipeline, in order: terrain → models (BHop) → regions → policies / graph / deployment
+→ execution / sweeps → plots / CLI. Everything public is re-exported here.
+"""
 
 import jax as _jax
 
@@ -6,4 +10,38 @@ _jax.config.update("jax_enable_x64", True)
 
 __version__ = "0.1.0"
 
+from ._bhop import bhop_apex_map as bhop_apex_map
+from ._bhop import deadbeat_bhop as deadbeat_bhop
+from ._deploy import PICKBEST as PICKBEST
+from ._deploy import check_order as check_order
+from ._deploy import deploy as deploy
 from ._errors import InputError as InputError
+from ._execute import bhop_stride as bhop_stride
+from ._execute import first_match as first_match
+from ._execute import in_global_domain as in_global_domain
+from ._execute import run_batch as run_batch
+from ._execute import sweep as sweep
+from ._execute import sweep_grid as sweep_grid
+from ._flight import RESULT_NAMES as RESULT_NAMES
+from ._flight import touchdown as touchdown
+from ._graph import prepares_matrix as prepares_matrix
+from ._params import Disturbance as Disturbance
+from ._params import Hopper as Hopper
+from ._params import disturbance_for as disturbance_for
+from ._plan import Plan as Plan
+from ._plan import build_plan as build_plan
+from ._plan import get_plan as get_plan
+from ._regions import feasible_goal_contains as feasible_goal_contains
+from ._regions import feasible_goal_contains_brute as feasible_goal_contains_brute
+from ._regions import goal_height_bounds as goal_height_bounds
+from ._regions import template_domain_contains as template_domain_contains
+from ._templates import Templates as Templates
+from ._templates import make_templates as make_templates
+from ._templates import paper_templates as paper_templates
+from ._terrain import Terrain as Terrain
+from ._terrain import builtin_terrain as builtin_terrain
+from ._terrain import load_terrain as load_terrain
+from ._terrain import make_terrain as make_terrain
+from ._terrain import random_terrain as random_terrain
+from ._terrain import save_terrain as save_terrain
+from ._terrain import segments as segments

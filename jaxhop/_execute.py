@@ -151,7 +151,7 @@ def in_global_domain(apexes, tables: PlanTables, hopper: Hopper) -> np.ndarray:
 
 def run_batch(plan: Plan, apex0, *, key=None, true_terrain: Terrain | None = None,
               disturbance: Disturbance | None = None, goal=None, max_steps: int = 60,
-              chunk: int = 1024, progress: bool = False):
+              tolerance=None, chunk: int = 1024, progress: bool = False):
     """Run many initial apexes through the reactive controller.
 
     The batch is padded to a multiple of `chunk` (fixed shapes: one compilation) and the
@@ -168,7 +168,8 @@ def run_batch(plan: Plan, apex0, *, key=None, true_terrain: Terrain | None = Non
     true_terrain = plan.terrain if true_terrain is None else true_terrain
     disturbance = Disturbance() if disturbance is None else disturbance
     config = RunConfig(goal=jnp.asarray(plan.goal if goal is None else goal, float),
-                       max_steps=max_steps)
+                       tolerance=jnp.full(3, 0.05) if tolerance is None
+                       else jnp.asarray(tolerance, float), max_steps=max_steps)
     chunk = int(min(chunk, max(n, 1)))
     devices = jax.devices()
     pending = []

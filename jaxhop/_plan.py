@@ -18,7 +18,7 @@ import numpy as np
 import scipy.sparse as sp
 from tqdm.auto import tqdm
 
-from ._deploy import by_safety, deploy
+from ._deploy import by_robust_depth, deploy
 from ._errors import InputError
 from ._graph import count_edges, situated_matrix
 from ._params import Hopper
@@ -39,6 +39,7 @@ SAFETY_WE = 0.5
 SAFETY_WG = 1.0
 _PAIR_CHUNK = 4096
 _FORMAT = 1
+_DEFAULT_GRID = PairGrid()
 
 
 class PlanTables(eqx.Module):
@@ -154,8 +155,8 @@ def build_plan(
     templates: Templates | None = None,
     hopper: Hopper | None = None,
     *,
-    grid: PairGrid = PairGrid(),
-    pickbest=by_safety,
+    grid: PairGrid = _DEFAULT_GRID,
+    pickbest=by_robust_depth,
     progress: bool = True,
 ) -> Plan:
     """Build the reactive plan of the 2012 paper for the BHop model.
@@ -247,7 +248,8 @@ def build_plan(
         sit, tgt, all_goals, all_margin = sit[sel], tgt[sel], all_goals[sel], all_margin[sel]
         safety, is_goal, p = safety[sel], is_goal[sel], p[sel]
 
-    order = deploy(p, sit, safety, is_goal, pickbest)
+    outer = outer_margin(all_goals, tgt, table, templates, hopper)
+    order = deploy(p, sit, safety, is_goal, outer, pickbest)
     stats = {
         "n_segments": int(n_seg),
         "n_situated": int(n_sit),
@@ -261,6 +263,27 @@ def build_plan(
     }
     return Plan(terrain, templates, hopper, np.asarray(goal, float), sit, tgt, all_goals,
                 safety, all_margin, is_goal, p.tocsr(), order, stats)
+
+
+def outer_margin(goals, target, table: SituatedTable, templates: Templates, hopper: Hopper):
+    """Margin of each goal to the outer boundary of the template set over its target segment.
+
+    Beyond `ydot` outside `[min v_lo, max v_hi]`, energies outside `[min e_lo, max e_hi]` or
+    `zr <= 0` no template has a domain, so a goal near them cannot absorb a disturbance.
+    Heights are measured in metres (energy margins divided by `m g`). Goal policies
+    (`target = -1`) get an infinite margin: they end the run.
+    """
+    nt = templates.n
+    h = np.asarray(table.centre)[np.maximum(target, 0) // nt, 1]
+    ydot = goals[:, 2]
+    zr = goals[:, 1] - h - hopper.rho0
+    mg = hopper.m * hopper.g
+    energy = 0.5 * hopper.m * ydot**2 + mg * zr
+    v_lo, v_hi = float(np.min(templates.v_lo)), float(np.max(templates.v_hi))
+    e_lo, e_hi = float(np.min(templates.e_lo)), float(np.max(templates.e_hi))
+    m = np.minimum.reduce([ydot - v_lo, v_hi - ydot, (energy - e_lo) / mg,
+                           (e_hi - energy) / mg, zr])
+    return np.where(target < 0, np.inf, m)
 
 
 def _check_goal(goal_or_terrain) -> np.ndarray:
@@ -278,7 +301,7 @@ def _check_goal(goal_or_terrain) -> np.ndarray:
 
 
 def plan_key(terrain: Terrain, goal, templates: Templates, hopper: Hopper,
-             grid: PairGrid = PairGrid()) -> str:
+             grid: PairGrid = _DEFAULT_GRID) -> str:
     from . import __version__
 
     payload = {

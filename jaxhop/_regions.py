@@ -202,15 +202,26 @@ def domain_samples(tmpl: Templates, hopper: Hopper, n: int = 24):
     return states, jnp.broadcast_to(valid[:, :, None], (n, n, 3)).reshape(-1)
 
 
-def feasible_goal_contains_brute(z_rel, tmpl: Templates, hopper: Hopper, n: int = 24):
+def feasible_goal_contains_brute(z_rel, tmpl: Templates, hopper: Hopper, n: int = 24,
+                                 with_extremes: bool = False):
     """`Z' in Gf(Phi)` by the definition (eq 6): reachable from every sampled domain state.
 
     Each sampled domain state is inverted with the BHop deadbeat (eqs 25-29) and its controls
-    are checked against the template's limits.
+    are checked against the template's limits. With `with_extremes`, the domain's extreme
+    touchdown velocities (`domain_velocity_extremes`) join the sample.
     """
     from ._bhop import deadbeat_bhop
 
     states, valid = domain_samples(tmpl, hopper, n)
+    if with_extremes:
+        v, mask = domain_velocity_extremes(tmpl, hopper)
+        zr = v[:, 1] ** 2 / (2.0 * hopper.g)
+        t_d = jnp.abs(v[:, 1]) / hopper.g
+        l = tmpl.half_length
+        extra = jnp.concatenate([jnp.stack([y - v[:, 0] * t_d, zr, v[:, 0]], 1)
+                                 for y in (-l, 0.0, l)])
+        states = jnp.concatenate([states, extra])
+        valid = jnp.concatenate([valid, mask, mask, mask])
     # h = -rho0 makes world heights equal heights above the virtual ground.
     u = jax.vmap(deadbeat_bhop, in_axes=(0, None, None, None))(states, z_rel, -hopper.rho0,
                                                                 hopper)

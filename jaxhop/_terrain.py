@@ -268,14 +268,15 @@ def random_terrain(
     Blocks are `n * 2l` long with `n` uniform in `segments_per_block`; heights are uniform in
     `height_range` rounded to 5 cm; after each block a hole follows with probability
     `hole_probability`, its width uniform in `hole_width`. The first and last blocks are at
-    height 0 and the last is at least 1.5 m long; the default goal is 0.5 m before its end,
-    1.3 m above it, at rest.
+    height 0; the last is at least 1.5 m long and reaches at least `length`. The default goal
+    is 0.5 m before its end, 1.3 m above it, at rest.
     """
     rng = np.random.default_rng(_seed_words(key))
     blocks, y = [], 0.0
     while True:
         n = int(rng.integers(segments_per_block[0], segments_per_block[1] + 1))
-        h = 0.0 if not blocks else round(float(rng.uniform(*height_range)) / 0.05) * 0.05
+        h = round(float(rng.uniform(*height_range)) / 0.05) * 0.05
+        h = 0.0 if not blocks else round(h, 2)
         end = y + n * seg_length
         if end > length - 1.5:
             break
@@ -283,7 +284,8 @@ def random_terrain(
         y = end
         if rng.uniform() < hole_probability:
             y += round(float(rng.uniform(*hole_width)), 2)
-    last = max(length, y + 1.5)
+    n_last = math.ceil((max(length, y + 1.5) - y) / seg_length - 1e-9)
+    last = y + n_last * seg_length
     blocks.append((round(y, 6), round(last, 6), 0.0))
     return make_terrain(blocks, (last - 0.5, 1.3, 0.0), name)
 

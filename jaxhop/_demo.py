@@ -1,0 +1,103 @@
+"""`jaxhop demo`: the main job on the built-in `reference` terrain."""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+
+import jax
+import numpy as np
+
+from ._execute import in_global_domain, run_batch, summarize, sweep_grid
+from ._flight import RESULT_NAMES
+from ._params import disturbance_for
+from ._plan import get_plan
+from ._terrain import builtin_terrain
+
+EXAMPLE_STARTS = ((0.6, 1.6, 0.5), (3.6, 1.5, 0.5))
+
+
+def _nearest_inside(initial: np.ndarray, target) -> np.ndarray:
+    return initial[np.argmin(np.sum((initial - np.asarray(target)) ** 2, axis=1))]
+
+
+def demo(out: str = "jaxhop-demo", cache: bool = True, log=print) -> dict:
+    """Plan on `reference`, two example runs, nominal and wind sweeps, figures, summary.
+
+    Writes `terrain_domain.png`, `example_runs.png`, `doa_none.png`, `doa_wind.png` and
+    `summary.json` into `out` and prints a short table.
+    """
+    import matplotlib.pyplot as plt
+
+    from ._plot import doa_figure, global_domain_figure, runs_figure
+
+    os.makedirs(out, exist_ok=True)
+    t0 = time.perf_counter()
+    terrain = builtin_terrain("reference")
+    if cache:
+        plan = get_plan(terrain, log=log)
+    else:
+        from ._plan import build_plan
+
+        plan = build_plan(terrain)
+    log(f"plan: {plan.stats['n_instantiated']} instantiated policies "
+        f"({plan.stats['seconds']} s{', from cache' if plan.stats.get('from_cache') else ''})")
+    tables = plan.tables()
+    grid = sweep_grid(terrain)
+    inside = in_global_domain(grid, tables, plan.hopper)
+    initial = grid[inside]
+
+    figures = {}
+
+    def save(fig, name):
+        path = os.path.join(out, name)
+        fig.savefig(path, dpi=130)
+        plt.close(fig)
+        figures[name.split(".")[0]] = path
+
+    save(global_domain_figure(terrain, grid, inside, plan.goal), "terrain_domain.png")
+
+    starts = np.stack([_nearest_inside(initial, s) for s in EXAMPLE_STARTS])
+    runs = run_batch(plan, starts, key=jax.random.key(0))
+    examples = [{k: v[i] for k, v in runs.items()} for i in range(len(starts))]
+    save(runs_figure(terrain, examples, plan.goal, "Two reactive BHop runs on 'reference'"),
+         "example_runs.png")
+
+    sweeps = {}
+    for noise in ("none", "wind"):
+        ts = time.perf_counter()
+        res = run_batch(plan, initial, key=jax.random.key(0), disturbance=disturbance_for(noise),
+                        progress=True)
+        sweeps[noise] = summarize(res, time.perf_counter() - ts)
+        save(doa_figure(terrain, initial, res["code"], res["steps"], plan.goal,
+                        f"BHop, noise {noise}"), f"doa_{noise}.png")
+
+    summary = {
+        "terrain": terrain.name,
+        "goal": plan.goal.tolist(),
+        "plan": plan.summary(),
+        "examples": [{"start": s.tolist(), "result": RESULT_NAMES[int(e["code"])],
+                      "steps": int(e["steps"])} for s, e in zip(starts, examples)],
+        "sweeps": sweeps,
+        "figures": figures,
+        "seconds": round(time.perf_counter() - t0, 2),
+    }
+    with open(os.path.join(out, "summary.json"), "w") as f:
+        json.dump(summary, f, indent=1)
+
+    p = summary["plan"]
+    print(f"jaxhop demo on 'reference' -> {out}/")
+    print(f"  plan: {p['n_segments']} segments, {p['n_situated']} situated, "
+          f"{p['n_instantiated']} instantiated, {p['n_deployed']} deployed")
+    for e in summary["examples"]:
+        print(f"  run from {np.round(e['start'], 2).tolist()}: {e['result']} in "
+              f"{e['steps']} strides")
+    print(f"  {'sweep':8s} {'runs':>6s} {'success':>8s} {'mean':>6s}  failures")
+    for noise, s in sweeps.items():
+        fails = ", ".join(f"{k} {v}" for k, v in s["failures"].items() if v) or "-"
+        print(f"  {noise:8s} {s['n_initial_conditions']:6d} {s['success_rate']:8.4f} "
+              f"{s['mean_steps']:6.2f}  {fails}")
+    print(f"  figures: {', '.join(os.path.basename(v) for v in figures.values())}; "
+          f"total {summary['seconds']} s")
+    return summary

@@ -1,0 +1,118 @@
+"""Figures: pure functions that take results and return a matplotlib Figure."""
+
+from __future__ import annotations
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+from matplotlib.colors import ListedColormap  # noqa: E402
+
+from ._flight import RESULT_NAMES  # noqa: E402
+from ._plan import Plan  # noqa: E402
+from ._terrain import Terrain  # noqa: E402
+
+
+def draw_terrain(ax, terrain: Terrain, perceived: Terrain | None = None, depth: float = 0.6):
+    """Blocks as filled rectangles; holes stay empty. A perceived map is drawn dashed."""
+    bottom = float(np.min(terrain.heights)) - depth
+    for s, e, h in terrain.blocks():
+        ax.fill_between([s, e], [bottom, bottom], [h, h], color="0.55", lw=0, zorder=1)
+        ax.plot([s, s, e, e], [bottom, h, h, bottom], color="0.25", lw=1.0, zorder=2)
+    if perceived is not None:
+        for s, e, h in perceived.blocks():
+            ax.plot([s, e], [h, h], "k--", lw=0.8, zorder=2)
+    ax.set_xlabel("y (m)")
+    ax.set_ylabel("z (m)")
+    ax.set_aspect("equal")
+
+
+def global_domain_figure(terrain: Terrain, states: np.ndarray, inside: np.ndarray,
+                         goal=None, ydot0: float = 0.5):
+    """Global domain (union of deployed policies' domains) at `ydot = ydot0` (Fig. 10)."""
+    fig, ax = plt.subplots(figsize=(11, 3.6))
+    draw_terrain(ax, terrain)
+    ax.scatter(states[inside, 0], states[inside, 1], s=4, c="tab:red", marker="s", lw=0,
+               label=f"apex states in the global domain (ydot = {ydot0} m/s)", zorder=3)
+    if goal is not None:
+        ax.plot(goal[0], goal[1], "ko", ms=7, label="global goal", zorder=4)
+    ax.legend(loc="upper left", fontsize=8)
+    ax.set_title(f"Global domain on '{terrain.name}': {int(inside.sum())} of {len(states)} "
+                 "grid states")
+    fig.tight_layout()
+    return fig
+
+
+def _arc(y0, z0, vy, vz, t1, g, n=20):
+    t = np.linspace(0.0, t1, n)
+    return y0 + vy * t, z0 + vz * t - 0.5 * g * t**2
+
+
+def draw_run(ax, apexes: np.ndarray, footholds: np.ndarray, rho0: float = 1.0,
+             g: float = 9.81, color="tab:blue", label=None):
+    """COM path of a run from its apexes and footholds (nominal ballistic arcs)."""
+    apexes = apexes[np.all(np.isfinite(apexes), axis=1)]
+    feet = footholds[np.all(np.isfinite(footholds), axis=1)]
+    for k, (y, h) in enumerate(feet):
+        a = apexes[k]
+        zr = a[1] - h - rho0
+        t_d = np.sqrt(max(2 * zr / g, 0.0))
+        ys, zs = _arc(a[0], a[1], a[2], 0.0, t_d, g)
+        ax.plot(ys, zs, color=color, lw=1.2, zorder=5, label=label if k == 0 else None)
+        ax.plot([y, y], [h, h + rho0], color="0.3", lw=0.6, zorder=4)
+        if k + 1 < len(apexes):
+            b = apexes[k + 1]
+            t_up = np.sqrt(max(2 * (b[1] - h - rho0) / g, 0.0))
+            y_lo = b[0] - b[2] * t_up
+            ax.plot([ys[-1], y_lo], [zs[-1], zs[-1]], color=color, lw=1.2, zorder=5)
+            ys2, zs2 = _arc(y_lo, h + rho0, b[2], g * t_up, t_up, g)
+            ax.plot(ys2, zs2, color=color, lw=1.2, zorder=5)
+    ax.plot(feet[:, 0], feet[:, 1], "v", color=color, ms=5, zorder=6)
+    ax.plot(apexes[:, 0], apexes[:, 1], ".", color=color, ms=5, zorder=6)
+    ax.plot(apexes[0, 0], apexes[0, 1], "x", color=color, ms=8, mew=2, zorder=6)
+
+
+def runs_figure(terrain: Terrain, runs: list[dict], goal=None, title="Example runs",
+                perceived: Terrain | None = None, rho0: float = 1.0, g: float = 9.81):
+    """Example runs over the terrain (Fig. 13): COM path, apexes (dots), footholds (triangles).
+
+    Each run is a dict with `apexes`, `footholds`, `code`, `steps`.
+    """
+    fig, ax = plt.subplots(figsize=(11, 3.8))
+    draw_terrain(ax, terrain, perceived)
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for i, run in enumerate(runs):
+        label = f"run {i + 1}: {RESULT_NAMES[int(run['code'])]} in {int(run['steps'])} strides"
+        draw_run(ax, run["apexes"], run["footholds"], rho0, g, colors[i % len(colors)], label)
+    if goal is not None:
+        ax.plot(goal[0], goal[1], "ko", ms=7, label="global goal", zorder=7)
+    ax.legend(loc="upper left", fontsize=8)
+    ax.set_title(title + "  (x: start, dots: apexes, triangles: footholds)")
+    fig.tight_layout()
+    return fig
+
+
+def doa_figure(terrain: Terrain, initial: np.ndarray, code: np.ndarray, steps: np.ndarray,
+               goal=None, title="Domain of attraction", dy: float = 0.05, dz: float = 0.05):
+    """Domain-of-attraction map (Figs. 16, 17, 20): success shaded by strides, failures red."""
+    fig, ax = plt.subplots(figsize=(11, 3.8))
+    draw_terrain(ax, terrain)
+    ok = code == 0
+    cmap = ListedColormap(plt.get_cmap("Greens")(np.linspace(0.25, 1.0, 256)))
+    sc = ax.scatter(initial[ok, 0], initial[ok, 1], c=steps[ok], cmap=cmap, s=5, marker="s",
+                    lw=0, zorder=3)
+    ax.scatter(initial[~ok, 0], initial[~ok, 1], c="tab:red", s=6, marker="s", lw=0, zorder=3,
+               label=f"failure ({int((~ok).sum())})")
+    if goal is not None:
+        ax.plot(goal[0], goal[1], "ko", ms=7, label="global goal", zorder=4)
+    fig.colorbar(sc, ax=ax, label="strides to goal", fraction=0.03, pad=0.01)
+    ax.legend(loc="upper left", fontsize=8)
+    rate = 100.0 * ok.mean() if ok.size else 0.0
+    ax.set_title(f"{title}: {rate:.1f}% of {ok.size} initial apexes reach the goal")
+    fig.tight_layout()
+    return fig
+
+
+def plan_for_figure(plan: Plan) -> dict:
+    return {"terrain": plan.terrain, "goal": plan.goal}

@@ -1,0 +1,153 @@
+"""Plan, deployment and execution on the small `flat` terrain."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxhop._deploy import check_order
+from jaxhop._execute import first_match, run_batch, run_one, sweep
+from jaxhop._flight import OK, SUCCESS, touchdown
+from jaxhop._params import Disturbance, disturbance_for
+from jaxhop._plan import build_plan, get_plan
+from jaxhop._regions import template_domain_contains
+from jaxhop._terrain import builtin_terrain, segments
+
+
+@pytest.fixture(scope="module")
+def plan():
+    return build_plan(builtin_terrain("flat"), progress=False)
+
+
+def test_counts(plan):
+    s = plan.stats
+    assert s["n_segments"] == 20 and s["n_situated"] == 400
+    assert s["n_goal_policies"] >= 1 and s["n_dropped"] == 0
+    assert s["n_deployed"] == s["n_instantiated"] > 1000
+    assert plan.order.size == np.unique(plan.order).size
+
+
+def _domain_brute(z, plan):
+    """Every situated domain containing z: simulate the descent, then the template test."""
+    terrain, t = plan.terrain, plan.templates
+    segs = segments(terrain)
+    code, block, _, y_foot, _ = touchdown(jnp.asarray(z), jnp.array([0.0, -1.0]), terrain,
+                                          plan.hopper)
+    out = set()
+    if int(code) != OK:
+        return out
+    for j, (py, h) in enumerate(np.asarray(segs.centre)):
+        if int(segs.block[j]) != int(block) or abs(float(y_foot) - py) > 0.075 + 1e-12:
+            continue
+        for k in range(t.n):
+            rel = jnp.array([z[0] - py, z[1] - h - 1.0, z[2]])
+            if bool(template_domain_contains(rel, t.row(k), plan.hopper)):
+                out.add(j * t.n + k)
+    return out
+
+
+def test_prepares_relation_against_brute_force(plan):
+    rng = np.random.default_rng(0)
+    p = plan.prepares.tocsr()
+    for a in rng.choice(plan.situated.size, 60, replace=False):
+        row = set(p.indices[p.indptr[a]:p.indptr[a + 1]].tolist())
+        assert row == _domain_brute(plan.goals[a], plan)
+        if not plan.is_goal[a]:
+            assert plan.target[a] in row  # the goal lies in the domain it was chosen for
+
+
+def test_deployment_invariant(plan):
+    assert check_order(plan.order, plan.prepares, plan.situated, plan.is_goal)
+    # Independent of the stored relation: every non-goal policy's goal lies in the domain of
+    # a policy deployed earlier.
+    seen = set()
+    rng = np.random.default_rng(1)
+    checks = set(rng.choice(plan.order.size, 80, replace=False).tolist())
+    for pos, a in enumerate(plan.order):
+        if pos in checks and not plan.is_goal[a]:
+            assert _domain_brute(plan.goals[a], plan) & seen
+        seen.add(int(plan.situated[a]))
+
+
+def test_deployment_invariant_breaks_when_order_is_shuffled(plan):
+    order = plan.order[::-1].copy()
+    assert not check_order(order, plan.prepares, plan.situated, plan.is_goal)
+
+
+def test_nominal_sweep_is_correct_by_construction(plan):
+    summary, initial, result = sweep(plan, dy=0.1, dz=0.1)
+    assert summary["n_initial_conditions"] > 200
+    assert summary["success_rate"] == 1.0 and summary["failures"]["solver"] == 0
+
+
+def test_run_jit_vmap_and_seed_reproducibility(plan):
+    tables = plan.tables()
+    starts = np.array([[0.4, 1.6, 0.5], [1.2, 1.9, 0.5], [2.0, 1.4, 0.5]])
+    from jaxhop._execute import RunConfig
+
+    cfg = RunConfig(goal=jnp.asarray(plan.goal))
+    dist = disturbance_for("sensor")
+    keys = jax.random.split(jax.random.key(7), 3)
+    with jax.disable_jit():
+        eager = [run_one(jnp.asarray(s), k, tables, plan.terrain, plan.hopper, dist, cfg)
+                 for s, k in zip(starts[:1], keys[:1])]
+    batched = run_batch(plan, starts, key=jax.random.key(7), disturbance=dist)
+    loop = [run_batch(plan, starts[i:i + 1], key=jax.random.key(7), disturbance=dist)
+            for i in range(1)]
+    assert int(eager[0][0]) == int(batched["code"][0]) == int(loop[0]["code"][0])
+    np.testing.assert_allclose(np.asarray(eager[0][2]), batched["apexes"][0], atol=1e-12)
+    again = run_batch(plan, starts, key=jax.random.key(7), disturbance=dist)
+    np.testing.assert_array_equal(again["apexes"], batched["apexes"])
+    other = run_batch(plan, starts, key=jax.random.key(8), disturbance=dist)
+    assert not np.array_equal(other["apexes"], batched["apexes"])
+
+
+def test_vmap_equals_loop_for_first_match(plan):
+    tables = plan.tables()
+    rng = np.random.default_rng(3)
+    z = np.stack([rng.uniform(0, 3, 40), rng.uniform(1.1, 2.4, 40), rng.uniform(-2, 2, 40)], 1)
+    fm = jax.jit(lambda a: first_match(a, tables, plan.hopper))
+    batched = jax.vmap(lambda a: first_match(a, tables, plan.hopper))(jnp.asarray(z))
+    for i in range(40):
+        single = fm(jnp.asarray(z[i]))
+        assert all(int(x) == int(y[i]) for x, y in zip(single, batched))
+
+
+def test_first_match_is_first_in_order(plan):
+    tables = plan.tables()
+    rank = np.empty(plan.order.size, int)
+    rank[plan.order] = np.arange(plan.order.size)
+    rng = np.random.default_rng(4)
+    for _ in range(20):
+        z = np.array([rng.uniform(0.3, 2.7), rng.uniform(1.15, 2.3), rng.uniform(-1.5, 1.5)])
+        found, s, a = (int(v) for v in first_match(jnp.asarray(z), tables, plan.hopper))
+        inside = _domain_brute(z, plan)
+        deployed = [x for x in plan.order if int(plan.situated[x]) in inside]
+        assert bool(found) == bool(deployed)
+        if deployed:
+            assert a == deployed[0]
+
+
+def test_goal_reached_exactly_without_noise(plan):
+    r = run_batch(plan, np.array([[0.5, 1.6, 0.5]]), disturbance=Disturbance())
+    assert int(r["code"][0]) == SUCCESS
+    last = r["apexes"][0][int(r["steps"][0])]
+    np.testing.assert_allclose(last, plan.goal, atol=1e-9)
+
+
+def test_cache_round_trip_and_corruption(tmp_path, monkeypatch, plan):
+    monkeypatch.setenv("JAXHOP_CACHE", str(tmp_path))
+    terrain = builtin_terrain("flat")
+    first = get_plan(terrain, progress=False)
+    assert first.stats["from_cache"] is False
+    again = get_plan(terrain, progress=False)
+    assert again.stats["from_cache"] is True
+    np.testing.assert_array_equal(again.order, first.order)
+    np.testing.assert_array_equal(again.goals, first.goals)
+    assert (again.prepares != first.prepares).nnz == 0
+    (path,) = list(tmp_path.glob("plan-*.npz"))
+    path.write_bytes(path.read_bytes()[:1000])
+    messages = []
+    rebuilt = get_plan(terrain, progress=False, log=messages.append)
+    assert len(messages) == 1 and "corrupt" in messages[0]
+    np.testing.assert_array_equal(rebuilt.order, first.order)

@@ -1,0 +1,132 @@
+"""Closed-form regions against the definitions they come from."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxhop._flight import OK, touchdown
+from jaxhop._params import Hopper
+from jaxhop._policies import ascent_y_bounds, descent_y_bounds
+from jaxhop._regions import (
+    feasible_goal_contains,
+    feasible_goal_contains_brute,
+    goal_height_bounds,
+    goal_height_bounds_printed,
+    goal_position_bounds,
+    template_domain_contains,
+)
+from jaxhop._templates import paper_templates
+from jaxhop._terrain import builtin_terrain, make_terrain
+
+HOP = Hopper()
+TEMPLATES = paper_templates()
+
+
+def _goal_grid(tmpl, n=41):
+    yd = jnp.linspace(-5.0, 5.0, n)
+    zr = jnp.linspace(0.01, 2.5, n)
+    YD, ZR = jnp.meshgrid(yd, zr, indexing="ij")
+    lo, hi = goal_position_bounds(YD, ZR, tmpl, HOP)
+    return jnp.stack([(0.5 * (lo + hi)).ravel(), ZR.ravel(), YD.ravel()], 1)
+
+
+@pytest.mark.parametrize("t", range(20))
+def test_closed_form_goal_matches_definition(t):
+    """Eq 6 by brute force (dense domain sample + deadbeat + limits) vs the closed form.
+
+    The closed form uses the domain's exact extreme points, the brute force a finite sample,
+    so the brute-force set may only be larger, and only near the boundary: the extra points
+    must vanish as the sample gets denser.
+    """
+    tmpl = TEMPLATES.row(t)
+    pts = _goal_grid(tmpl)
+    cf = np.asarray(jax.vmap(feasible_goal_contains, (0, None, None))(pts, tmpl, HOP))
+    bf = np.asarray(jax.vmap(lambda p: feasible_goal_contains_brute(p, tmpl, HOP, 16))(pts))
+    assert cf.sum() > 20
+    assert not np.any(cf & ~bf), "closed form accepts a goal the definition rejects"
+    extra = np.nonzero(bf & ~cf)[0]
+    # The definition on the sample plus the domain's exact extreme points is the closed form.
+    exact = np.asarray(jax.vmap(lambda p: feasible_goal_contains_brute(p, tmpl, HOP, 16,
+                                                                       True))(pts))
+    np.testing.assert_array_equal(exact, cf)
+    if extra.size:
+        dense = np.asarray(jax.vmap(lambda p: feasible_goal_contains_brute(p, tmpl, HOP, 64))(
+            pts[extra]))
+        assert dense.sum() < extra.size
+
+
+def test_goal_position_bounds_match_definition():
+    """y-extent of Gf: every touchdown in [-l, l] must reach it with dy in the limits."""
+    tmpl = TEMPLATES.row(12)
+    ydot, zr = 0.4, 0.5
+    lo, hi = goal_position_bounds(ydot, zr, tmpl, HOP)
+    t_up = np.sqrt(2 * zr / HOP.g)
+    for y in np.linspace(float(lo) - 0.05, float(hi) + 0.05, 41):
+        y_lo = y - ydot * t_up
+        dy_needed = y_lo - np.array([-0.075, 0.075])
+        ok = np.all((dy_needed >= 0) & (dy_needed <= 0.25))
+        assert ok == (float(lo) <= y <= float(hi)) or min(abs(y - lo), abs(y - hi)) < 1e-9
+
+
+def test_height_bounds_agree_with_membership():
+    tmpl = TEMPLATES.row(8)
+    for ydot in np.linspace(-3, 2, 26):
+        zl, zh = (float(v) for v in goal_height_bounds(ydot, tmpl, HOP))
+        for zr in np.linspace(0.02, 2.4, 60):
+            lo, hi = goal_position_bounds(ydot, zr, tmpl, HOP)
+            inside = bool(feasible_goal_contains(jnp.array([0.5 * (lo + hi), zr, ydot]),
+                                                 tmpl, HOP))
+            if min(abs(zr - zl), abs(zr - zh)) > 1e-9:
+                assert inside == (zl <= zr <= zh)
+
+
+def test_printed_equations_disagree_with_definition():
+    """Eqs 47-48 as printed (min/max swapped, zdot not squared) are not the feasible set."""
+    tmpl = TEMPLATES.row(12)
+    zl_p, zh_p = (float(v) for v in goal_height_bounds_printed(0.3, tmpl, HOP))
+    zl, zh = (float(v) for v in goal_height_bounds(0.3, tmpl, HOP))
+    assert abs(zl_p - zl) > 0.05 or abs(zh_p - zh) > 0.05
+
+
+def test_domain_matches_touchdown_definition():
+    """D(Phi) of eqs 38-41: touchdown of the nominal descent falls on [-l, l]."""
+    rng = np.random.default_rng(0)
+    flat = make_terrain([(-5.0, 5.0, 0.0)])
+    for _ in range(300):
+        t = int(rng.integers(20))
+        tmpl = TEMPLATES.row(t)
+        z = jnp.array([rng.uniform(-0.6, 0.6), rng.uniform(0.01, 1.6), rng.uniform(-2.6, 2.6)])
+        code, _, _, y_foot, _ = touchdown(jnp.array([z[0], z[1] + 1.0, z[2]]),
+                                          jnp.array([0.0, -1.0]), flat, HOP)
+        energy = 0.5 * HOP.m * z[2] ** 2 + HOP.m * HOP.g * z[1]
+        expect = (code == OK and abs(float(y_foot)) <= 0.075 and tmpl.v_lo <= z[2] <= tmpl.v_hi
+                  and tmpl.e_lo <= energy <= tmpl.e_hi)
+        assert bool(template_domain_contains(z, tmpl, HOP)) == bool(expect)
+
+
+def test_collision_free_bounds_match_simulated_descent_and_rise():
+    """The y bounds used for instantiation agree with the simulator's touchdown test."""
+    terrain = builtin_terrain("reference")
+    rng = np.random.default_rng(1)
+    checked = 0
+    for _ in range(400):
+        block = int(rng.integers(terrain.n_blocks))
+        s, e, h = terrain.blocks()[block]
+        ydot = rng.uniform(-2.5, 2.5)
+        z = h + 1.0 + rng.uniform(0.02, 1.4)
+        t_d = np.sqrt(2 * (z - h - 1.0) / HOP.g)
+        y_td = rng.uniform(s + 0.01, e - 0.01)
+        y = y_td - ydot * t_d
+        lo, hi = (float(v) for v in descent_y_bounds(ydot, z, block, terrain, HOP))
+        code, b, _, _, _ = touchdown(jnp.array([y, z, ydot]), jnp.array([0.0, -1.0]), terrain,
+                                     HOP)
+        clear = int(code) == OK and int(b) == block
+        if min(abs(y - lo), abs(y - hi)) > 1e-9:
+            assert clear == (lo < y < hi), (y, z, ydot, block, lo, hi, int(code), int(b))
+            checked += 1
+    assert checked > 350
+    # Rising from the bottom of a 1.1 m deep well: a wall taller than the leg.
+    well = make_terrain([(0.0, 1.0, 1.1), (1.0, 2.0, 0.0), (2.0, 3.0, 1.1)])
+    lo, hi = ascent_y_bounds(0.5, 1.9, 1, well, HOP)
+    assert float(hi) < 2.0 + 0.5 * np.sqrt(2 * 0.9 / HOP.g) and float(lo) > 1.0
