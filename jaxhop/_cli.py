@@ -51,8 +51,8 @@ def _common(p, model=True, noise=False):
     p.add_argument("--goal", default=None, help="global goal y,z,ydot (default: the terrain's)")
     p.add_argument("--json", default=None, metavar="PATH", help="write the result as JSON")
     p.add_argument("--no-cache", action="store_true", help="rebuild the plan, do not cache")
-    p.add_argument("--pickbest", default="robust-depth",
-                   choices=("robust-depth", "depth", "safety"), help="deployment priority")
+    p.add_argument("--pickbest", default="robust", choices=("robust", "depth", "safety"),
+                   help="deployment priority")
     if model:
         p.add_argument("--model", default="bhop", choices=("bhop",))
     if noise:
@@ -139,7 +139,7 @@ def _plan(args, terrain, goal):
     from ._deploy import PICKBEST
     from ._plan import build_plan, get_plan
 
-    if args.pickbest != "robust-depth" or args.no_cache:
+    if args.pickbest != "robust" or args.no_cache:
         return build_plan(terrain, goal, pickbest=PICKBEST[args.pickbest])
     return get_plan(terrain, goal, log=_log)
 

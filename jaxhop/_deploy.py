@@ -8,29 +8,27 @@ from collections.abc import Callable
 import numpy as np
 import scipy.sparse as sp
 
-FRAGILE_MARGIN = 0.05
 
-
-def by_safety(safety: np.ndarray, depth: np.ndarray, outer: np.ndarray) -> np.ndarray:
+def by_safety(safety: np.ndarray, depth: np.ndarray, robustness: np.ndarray) -> np.ndarray:
     """The paper's `pickbest` (section VI-B): highest safety (eq 34) first."""
     return -safety
 
 
-def by_depth(safety: np.ndarray, depth: np.ndarray, outer: np.ndarray) -> np.ndarray:
+def by_depth(safety: np.ndarray, depth: np.ndarray, robustness: np.ndarray) -> np.ndarray:
     """Fewest strides to the goal first, then highest safety."""
     return depth * 1e6 - safety
 
 
-def by_robust_depth(safety: np.ndarray, depth: np.ndarray, outer: np.ndarray) -> np.ndarray:
-    """Default `pickbest`: fewest strides, where a fragile goal counts one stride more.
+def by_robustness(safety: np.ndarray, depth: np.ndarray, robustness: np.ndarray) -> np.ndarray:
+    """Default `pickbest`: most robust goal first, then fewest strides, then highest safety.
 
-    A goal is fragile when it lies within `FRAGILE_MARGIN` (the sensor-noise scale) of the
-    outer boundary of the template set (no policy exists beyond it). Ties: highest safety.
+    `robustness` is the safety-sampling score of the goal (`goal_robustness`): the fraction
+    of a box of perturbed goals that lies in some situated domain.
     """
-    return (depth + (outer < FRAGILE_MARGIN)) * 1e6 - safety
+    return -robustness * 1e12 + depth * 1e6 - safety
 
 
-PICKBEST = {"robust-depth": by_robust_depth, "depth": by_depth, "safety": by_safety}
+PICKBEST = {"robust": by_robustness, "depth": by_depth, "safety": by_safety}
 
 
 def deploy(
@@ -38,8 +36,8 @@ def deploy(
     situated: np.ndarray,
     safety: np.ndarray,
     is_goal: np.ndarray,
-    outer: np.ndarray | None = None,
-    pickbest: Callable[..., np.ndarray] = by_robust_depth,
+    robustness: np.ndarray | None = None,
+    pickbest: Callable[..., np.ndarray] = by_robustness,
 ) -> np.ndarray:
     """Order instantiated policies by backchaining from the goal policies.
 
@@ -52,24 +50,23 @@ def deploy(
         situated: `(n,)` situated policy of each instantiated policy.
         safety: `(n,)` safety of each (eq 34).
         is_goal: `(n,)` which are goal policies.
-        outer: `(n,)` margin of each goal to the outer boundary of the template set
-            (default: infinite).
-        pickbest: maps `(safety, depth, outer)` to a priority key, smallest first. `depth`
-            is the number of strides to the goal along the backchain.
+        robustness: `(n,)` safety-sampling score of each goal (default: all 1).
+        pickbest: maps `(safety, depth, robustness)` to a priority key, smallest first.
+            `depth` is the number of strides to the goal along the backchain.
 
     Returns:
         The deployed policies, in order.
     """
     preparers = p.tocsc()
     n = situated.shape[0]
-    outer = np.full(n, np.inf) if outer is None else outer
+    robustness = np.ones(n) if robustness is None else robustness
     depth = np.full(n, np.iinfo(np.int64).max, dtype=np.int64)
     queued = np.zeros(n, dtype=bool)
     expanded = np.zeros(p.shape[1], dtype=bool)
     heap: list[tuple[float, int]] = []
     goals = np.nonzero(is_goal)[0]
     depth[goals] = 1
-    keys = pickbest(safety, np.where(is_goal, 1, 0), outer)
+    keys = pickbest(safety, np.where(is_goal, 1, 0), robustness)
     for a in goals:
         heapq.heappush(heap, (float(keys[a]), int(a)))
         queued[a] = True
@@ -87,7 +84,7 @@ def deploy(
             continue
         queued[new] = True
         depth[new] = depth[b] + 1
-        keys_new = pickbest(safety[new], depth[new], outer[new])
+        keys_new = pickbest(safety[new], depth[new], robustness[new])
         for key, a in zip(keys_new, new):
             heapq.heappush(heap, (float(key), int(a)))
     return np.asarray(order, dtype=np.int64)

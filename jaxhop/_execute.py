@@ -163,7 +163,8 @@ def run_batch(plan: Plan, apex0, *, key=None, true_terrain: Terrain | None = Non
     apex0 = np.atleast_2d(np.asarray(apex0, float))
     n = apex0.shape[0]
     key = jax.random.key(0) if key is None else key
-    keys = jax.random.split(key, max(n, 1))
+    # Run i's noise comes from fold_in(key, i): independent of batch size and chunking.
+    keys = jax.vmap(jax.random.fold_in, (None, 0))(key, jnp.arange(max(n, 1)))
     tables = plan.tables()
     true_terrain = plan.terrain if true_terrain is None else true_terrain
     disturbance = Disturbance() if disturbance is None else disturbance

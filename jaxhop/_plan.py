@@ -18,7 +18,7 @@ import numpy as np
 import scipy.sparse as sp
 from tqdm.auto import tqdm
 
-from ._deploy import by_robust_depth, deploy
+from ._deploy import by_robustness, deploy
 from ._errors import InputError
 from ._graph import count_edges, situated_matrix
 from ._params import Hopper
@@ -28,6 +28,7 @@ from ._policies import (
     candidate_pairs,
     candidate_situated,
     goal_policy_margin,
+    goal_robustness,
     pair_goal,
     situated_table,
     template_boxes,
@@ -38,7 +39,8 @@ from ._terrain import Terrain, segments
 SAFETY_WE = 0.5
 SAFETY_WG = 1.0
 _PAIR_CHUNK = 4096
-_FORMAT = 1
+_FORMAT = 2
+PROBE_HALF_WIDTH = 0.2
 _DEFAULT_GRID = PairGrid()
 
 
@@ -66,6 +68,7 @@ class Plan:
         goals: `(n_inst, 3)` goal apex of each instantiated policy.
         safety, margin: `(n_inst,)` eq 34 and the goal's margin in its intersection.
         is_goal: `(n_inst,)` goal policies.
+        robustness: `(n_inst,)` safety-sampling score of each goal (`goal_robustness`).
         prepares: `P[a, s] = [goals[a] ∈ D(s)]` (CSR).
         order: deployed instantiated policies in priority order.
         stats: counts and timings (SPEC section 15 `plan` keys).
@@ -81,6 +84,7 @@ class Plan:
     safety: np.ndarray
     margin: np.ndarray
     is_goal: np.ndarray
+    robustness: np.ndarray
     prepares: sp.csr_matrix
     order: np.ndarray
     stats: dict
@@ -145,6 +149,14 @@ def _goal_policies(goal, table, templates, terrain, hopper):
 _goal_policies_jit = jax.jit(_goal_policies)
 
 
+def _robustness(goals, table, templates, terrain, hopper, half_width):
+    return jax.vmap(goal_robustness, (0, None, None, None, None, None))(
+        goals, table, templates, terrain, hopper, half_width)
+
+
+_robustness_jit = jax.jit(_robustness)
+
+
 def _chunks(n, size):
     return range(0, n, size)
 
@@ -156,7 +168,8 @@ def build_plan(
     hopper: Hopper | None = None,
     *,
     grid: PairGrid = _DEFAULT_GRID,
-    pickbest=by_robust_depth,
+    pickbest=by_robustness,
+    probe: float = PROBE_HALF_WIDTH,
     progress: bool = True,
 ) -> Plan:
     """Build the reactive plan of the 2012 paper for the BHop model.
@@ -167,6 +180,7 @@ def build_plan(
         templates, hopper: default: the 20 templates of eq 33, an 80 kg, 1 m hopper.
         grid: intersection sampling sizes.
         pickbest: deployment priority (see `_deploy`).
+        probe: half-width (m, m, m/s) of the safety-sampling box around each goal.
         progress: show a progress bar.
 
     Returns:
@@ -248,8 +262,15 @@ def build_plan(
         sit, tgt, all_goals, all_margin = sit[sel], tgt[sel], all_goals[sel], all_margin[sel]
         safety, is_goal, p = safety[sel], is_goal[sel], p[sel]
 
-    outer = outer_margin(all_goals, tgt, table, templates, hopper)
-    order = deploy(p, sit, safety, is_goal, outer, pickbest)
+    robustness = np.ones(sit.size)
+    for start in _chunks(sit.size, chunk):
+        idx = np.arange(start, start + chunk).clip(max=max(sit.size - 1, 0))
+        stop = min(start + chunk, sit.size)
+        r = _robustness_jit(jnp.asarray(all_goals[idx]), table, templates, terrain, hopper,
+                            jnp.full(3, float(probe)))
+        robustness[start:stop] = np.asarray(r)[: stop - start]
+    robustness[is_goal] = 1.0
+    order = deploy(p, sit, safety, is_goal, robustness, pickbest)
     stats = {
         "n_segments": int(n_seg),
         "n_situated": int(n_sit),
@@ -262,28 +283,7 @@ def build_plan(
         "seconds": round(time.perf_counter() - t_start, 3),
     }
     return Plan(terrain, templates, hopper, np.asarray(goal, float), sit, tgt, all_goals,
-                safety, all_margin, is_goal, p.tocsr(), order, stats)
-
-
-def outer_margin(goals, target, table: SituatedTable, templates: Templates, hopper: Hopper):
-    """Margin of each goal to the outer boundary of the template set over its target segment.
-
-    Beyond `ydot` outside `[min v_lo, max v_hi]`, energies outside `[min e_lo, max e_hi]` or
-    `zr <= 0` no template has a domain, so a goal near them cannot absorb a disturbance.
-    Heights are measured in metres (energy margins divided by `m g`). Goal policies
-    (`target = -1`) get an infinite margin: they end the run.
-    """
-    nt = templates.n
-    h = np.asarray(table.centre)[np.maximum(target, 0) // nt, 1]
-    ydot = goals[:, 2]
-    zr = goals[:, 1] - h - hopper.rho0
-    mg = hopper.m * hopper.g
-    energy = 0.5 * hopper.m * ydot**2 + mg * zr
-    v_lo, v_hi = float(np.min(templates.v_lo)), float(np.max(templates.v_hi))
-    e_lo, e_hi = float(np.min(templates.e_lo)), float(np.max(templates.e_hi))
-    m = np.minimum.reduce([ydot - v_lo, v_hi - ydot, (energy - e_lo) / mg,
-                           (e_hi - energy) / mg, zr])
-    return np.where(target < 0, np.inf, m)
+                safety, all_margin, is_goal, robustness, p.tocsr(), order, stats)
 
 
 def _check_goal(goal_or_terrain) -> np.ndarray:
@@ -312,6 +312,7 @@ def plan_key(terrain: Terrain, goal, templates: Templates, hopper: Hopper,
         "templates": templates.to_dict(),
         "hopper": [float(hopper.m), float(hopper.g), float(hopper.rho0)],
         "grid": [grid.n_v, grid.n_z],
+        "probe": PROBE_HALF_WIDTH,
     }
     return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()
 
@@ -328,6 +329,7 @@ def save_plan(plan: Plan, path: str, key: str) -> None:
         np.savez_compressed(
             f, key=np.asarray(key), situated=plan.situated, target=plan.target,
             goals=plan.goals, safety=plan.safety, margin=plan.margin, is_goal=plan.is_goal,
+            robustness=plan.robustness,
             p_indptr=p.indptr, p_indices=p.indices, p_shape=np.asarray(p.shape),
             order=plan.order, stats=np.asarray(json.dumps(plan.stats)))
     os.replace(tmp, path)
@@ -345,7 +347,8 @@ def load_plan(path: str, key: str, terrain: Terrain, goal, templates: Templates,
             p = sp.csr_matrix((np.ones(z["p_indices"].size, bool), z["p_indices"],
                                z["p_indptr"]), shape=shape)
             plan = Plan(terrain, templates, hopper, np.asarray(goal, float), z["situated"],
-                        z["target"], z["goals"], z["safety"], z["margin"], z["is_goal"], p,
+                        z["target"], z["goals"], z["safety"], z["margin"], z["is_goal"],
+                        z["robustness"], p,
                         z["order"], json.loads(str(z["stats"])))
     except (OSError, KeyError, zipfile.BadZipFile, EOFError, json.JSONDecodeError) as err:
         raise ValueError(f"corrupt cache ({err})") from None

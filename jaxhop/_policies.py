@@ -310,3 +310,21 @@ def goal_policy_margin(goal, ti, seg_i, table: SituatedTable, templates: Templat
     first_out = jnp.argmin(inside, axis=2)
     dist = jnp.where(jnp.all(inside, axis=2), steps[-1], steps[first_out] - 0.005)
     return ok(goal), jnp.where(ok(goal), jnp.min(dist), -jnp.inf)
+
+
+def goal_robustness(goal, table: SituatedTable, templates: Templates, terrain: Terrain,
+                    hopper: Hopper, half_width):
+    """Safety sampling: fraction of a box of perturbed goals that some situated domain holds.
+
+    The box `goal + {-1, 0, 1}^3 * half_width` (27 probes) stands for where a disturbed
+    stride may end. A probe outside every situated domain (beyond the template set's
+    velocity or energy range on the block it would land on, over a hole, into a wall) is a
+    state from which no policy can continue.
+    """
+    offsets = jnp.stack(jnp.meshgrid(*[jnp.arange(-1.0, 2.0)] * 3, indexing="ij"), -1)
+    probes = goal + offsets.reshape(-1, 3) * half_width
+
+    def held(p):
+        return jnp.any(candidate_situated(p, table, templates, terrain, hopper)[1])
+
+    return jnp.mean(jax.vmap(held)(probes).astype(float))

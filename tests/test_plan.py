@@ -85,20 +85,22 @@ def test_run_jit_vmap_and_seed_reproducibility(plan):
     starts = np.array([[0.4, 1.6, 0.5], [1.2, 1.9, 0.5], [2.0, 1.4, 0.5]])
     from jaxhop._execute import RunConfig
 
-    cfg = RunConfig(goal=jnp.asarray(plan.goal))
+    cfg = RunConfig(goal=jnp.asarray(plan.goal), max_steps=12)
     dist = disturbance_for("sensor")
-    keys = jax.random.split(jax.random.key(7), 3)
+    keys = [jax.random.fold_in(jax.random.key(7), i) for i in range(3)]
     with jax.disable_jit():
         eager = [run_one(jnp.asarray(s), k, tables, plan.terrain, plan.hopper, dist, cfg)
                  for s, k in zip(starts[:1], keys[:1])]
-    batched = run_batch(plan, starts, key=jax.random.key(7), disturbance=dist)
-    loop = [run_batch(plan, starts[i:i + 1], key=jax.random.key(7), disturbance=dist)
-            for i in range(1)]
+    batched = run_batch(plan, starts, key=jax.random.key(7), disturbance=dist, max_steps=12)
+    # Run 0 alone equals run 0 in the batch (keys do not depend on the batch).
+    loop = [run_batch(plan, starts[i:i + 1], key=jax.random.key(7), disturbance=dist,
+                      max_steps=12) for i in range(1)]
     assert int(eager[0][0]) == int(batched["code"][0]) == int(loop[0]["code"][0])
+    np.testing.assert_array_equal(loop[0]["apexes"][0], batched["apexes"][0])
     np.testing.assert_allclose(np.asarray(eager[0][2]), batched["apexes"][0], atol=1e-12)
-    again = run_batch(plan, starts, key=jax.random.key(7), disturbance=dist)
+    again = run_batch(plan, starts, key=jax.random.key(7), disturbance=dist, max_steps=12)
     np.testing.assert_array_equal(again["apexes"], batched["apexes"])
-    other = run_batch(plan, starts, key=jax.random.key(8), disturbance=dist)
+    other = run_batch(plan, starts, key=jax.random.key(8), disturbance=dist, max_steps=12)
     assert not np.array_equal(other["apexes"], batched["apexes"])
 
 
