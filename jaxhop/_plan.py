@@ -30,6 +30,7 @@ from ._policies import (
     goal_policy_margin,
     goal_robustness,
     pair_goal,
+    pair_may_intersect,
     situated_table,
     template_boxes,
 )
@@ -130,6 +131,14 @@ def _pair_batch(ti, si, tj, sj, boxes, table, templates, terrain, hopper, grid):
 _pair_batch_jit = jax.jit(_pair_batch, static_argnames=("grid",))
 
 
+def _screen_batch(ti, si, tj, sj, boxes, table, templates, hopper, grid):
+    return jax.vmap(pair_may_intersect, (0, 0, 0, 0, 0, None, None, None, None))(
+        ti, si, tj, sj, boxes, table, templates, hopper, grid)
+
+
+_screen_batch_jit = jax.jit(_screen_batch, static_argnames=("grid",))
+
+
 def _situated_batch(goals, table, templates, terrain, hopper):
     return jax.vmap(candidate_situated, (0, None, None, None, None))(
         goals, table, templates, terrain, hopper)
@@ -209,16 +218,39 @@ def build_plan(
     boxes = np.stack([np.maximum(gf_world[rows, 1:, 0], d_world[cols, 1:, 0]),
                       np.minimum(gf_world[rows, 1:, 1], d_world[cols, 1:, 1])], axis=2)
 
+    stages = {}
+    mark = t_start
+
+    def lap(name):
+        nonlocal mark
+        now = time.perf_counter()
+        stages[name] = round(now - mark, 3)
+        mark = now
+
+    lap("boxes")
     n_pairs = rows.size
-    found = np.zeros(n_pairs, bool)
-    goals = np.zeros((n_pairs, 3))
-    margin = np.zeros(n_pairs)
-    margin_d = np.zeros(n_pairs)
-    bar = tqdm(total=n_pairs, desc="instantiate", unit="pair", disable=not progress,
+    # Screen: drop pairs empty even before the collision clauses (most of them).
+    keep = np.zeros(n_pairs, bool)
+    for start in _chunks(n_pairs, 4 * _PAIR_CHUNK):
+        stop = min(start + 4 * _PAIR_CHUNK, n_pairs)
+        idx = np.arange(start, start + 4 * _PAIR_CHUNK).clip(max=n_pairs - 1)
+        out = _screen_batch_jit(
+            jnp.asarray(t_of[rows[idx]]), jnp.asarray(s_of[rows[idx]]),
+            jnp.asarray(t_of[cols[idx]]), jnp.asarray(s_of[cols[idx]]),
+            jnp.asarray(boxes[idx]), table, templates, hopper, grid)
+        keep[start:stop] = np.asarray(out)[: stop - start]
+    rows, cols, boxes = rows[keep], cols[keep], boxes[keep]
+    n_screened = rows.size
+    lap("screen")
+    found = np.zeros(n_screened, bool)
+    goals = np.zeros((n_screened, 3))
+    margin = np.zeros(n_screened)
+    margin_d = np.zeros(n_screened)
+    bar = tqdm(total=n_screened, desc="instantiate", unit="pair", disable=not progress,
                file=sys.stderr, leave=False)
-    for start in _chunks(n_pairs, _PAIR_CHUNK):
-        stop = min(start + _PAIR_CHUNK, n_pairs)
-        idx = np.arange(start, start + _PAIR_CHUNK).clip(max=n_pairs - 1)
+    for start in _chunks(n_screened, _PAIR_CHUNK):
+        stop = min(start + _PAIR_CHUNK, n_screened)
+        idx = np.arange(start, start + _PAIR_CHUNK).clip(max=max(n_screened - 1, 0))
         out = _pair_batch_jit(
             jnp.asarray(t_of[rows[idx]]), jnp.asarray(s_of[rows[idx]]),
             jnp.asarray(t_of[cols[idx]]), jnp.asarray(s_of[cols[idx]]),
@@ -227,6 +259,7 @@ def build_plan(
         found[start:stop], goals[start:stop], margin[start:stop], margin_d[start:stop] = out
         bar.update(stop - start)
     bar.close()
+    lap("instantiate")
 
     g_ok, g_margin = (np.asarray(x) for x in _goal_policies_jit(
         jnp.asarray(goal), table, templates, terrain, hopper))
@@ -252,6 +285,7 @@ def build_plan(
         ids[start:stop] = np.asarray(i_)[: stop - start]
         inside[start:stop] = np.asarray(m_)[: stop - start]
     p = situated_matrix(inside, ids, n_sit)
+    lap("prepares")
     # Each goal must lie in the domain it was chosen for; drop any that do not (none should).
     keep = is_goal | np.asarray(p[np.arange(sit.size), np.maximum(tgt, 0)]).ravel()
     n_dropped = int((~keep).sum())
@@ -270,17 +304,21 @@ def build_plan(
                             jnp.full(3, float(probe)))
         robustness[start:stop] = np.asarray(r)[: stop - start]
     robustness[is_goal] = 1.0
+    lap("safety_sampling")
     order = deploy(p, sit, safety, is_goal, robustness, pickbest)
+    lap("deploy")
     stats = {
         "n_segments": int(n_seg),
         "n_situated": int(n_sit),
         "n_candidate_pairs": int(n_pairs),
+        "n_screened_pairs": int(n_screened),
         "n_instantiated": int(sit.size),
         "n_goal_policies": int(is_goal.sum()),
         "n_deployed": int(order.size),
         "n_edges": count_edges(p, sit),
         "n_dropped": n_dropped,
         "seconds": round(time.perf_counter() - t_start, 3),
+        "stage_seconds": stages,
     }
     return Plan(terrain, templates, hopper, np.asarray(goal, float), sit, tgt, all_goals,
                 safety, all_margin, is_goal, robustness, p.tocsr(), order, stats)

@@ -221,6 +221,48 @@ class PairGrid(eqx.Module):
     n_z: int = eqx.field(static=True, default=16)
 
 
+def _pair_grid(ti, seg_i, tj, seg_j, box, table: SituatedTable, templates: Templates,
+               hopper: Hopper, grid: PairGrid):
+    """The `(ydot, z)` grid of a pair with each region's `z` limits and `y` extents."""
+    tmpl_i, tmpl_j = templates.row(ti), templates.row(tj)
+    py_i, h_i = table.centre[seg_i, 0], table.centre[seg_i, 1]
+    py_j, h_j = table.centre[seg_j, 0], table.centre[seg_j, 1]
+    rho0 = hopper.rho0
+    (z0, z1), (v0, v1) = box[0], box[1]
+    dv, dz = (v1 - v0) / grid.n_v, (z1 - z0) / grid.n_z
+    vs = v0 + (jnp.arange(grid.n_v) + 0.5) * dv
+    zs = z0 + (jnp.arange(grid.n_z) + 0.5) * dz
+
+    gzl, gzh = jax.vmap(goal_height_bounds, (0, None, None))(vs, tmpl_i, hopper)
+    dzl, dzh = jax.vmap(domain_height_bounds, (0, None, None))(vs, tmpl_j, hopper)
+    gzl, gzh = gzl + h_i + rho0, gzh + h_i + rho0
+    dzl, dzh = dzl + h_j + rho0, dzh + h_j + rho0
+    # D(j) needs zr > 0 strictly; stay a hair above the virtual ground.
+    dzl = jnp.maximum(dzl, h_j + rho0 + 1e-6)
+    V, Z = jnp.meshgrid(vs, zs, indexing="ij")
+    g_lo, g_hi = goal_position_bounds(V, Z - h_i - rho0, tmpl_i, hopper)
+    shift_j = V * safe_sqrt(2.0 * (Z - h_j - rho0) / hopper.g)
+    l = templates.half_length
+    return {"V": V, "Z": Z, "dv": dv, "dz": dz, "gzl": gzl, "gzh": gzh, "dzl": dzl,
+            "dzh": dzh, "g_lo": g_lo + py_i, "g_hi": g_hi + py_i,
+            "d_lo": py_j - shift_j - l, "d_hi": py_j - shift_j + l}
+
+
+def pair_may_intersect(ti, seg_i, tj, seg_j, box, table: SituatedTable, templates: Templates,
+                       hopper: Hopper, grid: PairGrid):
+    """Whether `Gf(i) ∩ D(j)` has a grid cell before the collision clauses are applied.
+
+    The collision clauses only shrink the `y` extents, so a pair rejected here is empty in
+    `pair_goal` too; this cheap pass (no per-block work) screens the candidate pairs.
+    """
+    c = _pair_grid(ti, seg_i, tj, seg_j, box, table, templates, hopper, grid)
+    zl = jnp.maximum(c["gzl"], c["dzl"])[:, None]
+    zh = jnp.minimum(c["gzh"], c["dzh"])[:, None]
+    y_lo = jnp.maximum(c["g_lo"], c["d_lo"])
+    y_hi = jnp.minimum(c["g_hi"], c["d_hi"])
+    return jnp.any((c["Z"] >= zl) & (c["Z"] <= zh) & (y_hi > y_lo))
+
+
 def pair_goal(ti, seg_i, tj, seg_j, box, table: SituatedTable, templates: Templates,
               terrain: Terrain, hopper: Hopper, grid: PairGrid):
     """Best goal in `Gf(i) ∩ D(j)` for one candidate pair.
@@ -234,36 +276,19 @@ def pair_goal(ti, seg_i, tj, seg_j, box, table: SituatedTable, templates: Templa
         `(y, z, ydot)` maximising the margin to the intersection's boundary, that margin, and
         the goal's margin to `∂D(j)` alone (used in the safety measure, eq 34).
     """
-    tmpl_i, tmpl_j = templates.row(ti), templates.row(tj)
-    py_i, h_i = table.centre[seg_i, 0], table.centre[seg_i, 1]
-    py_j, h_j = table.centre[seg_j, 0], table.centre[seg_j, 1]
+    c = _pair_grid(ti, seg_i, tj, seg_j, box, table, templates, hopper, grid)
+    V, Z, dv, dz, dzl, dzh = c["V"], c["Z"], c["dv"], c["dz"], c["dzl"], c["dzh"]
+    tmpl_j = templates.row(tj)
     b_i, b_j = table.seg_block[seg_i], table.seg_block[seg_j]
-    rho0 = hopper.rho0
-    (z0, z1), (v0, v1) = box[0], box[1]
-    dv, dz = (v1 - v0) / grid.n_v, (z1 - z0) / grid.n_z
-    vs = v0 + (jnp.arange(grid.n_v) + 0.5) * dv
-    zs = z0 + (jnp.arange(grid.n_z) + 0.5) * dz
-
-    gzl, gzh = jax.vmap(goal_height_bounds, (0, None, None))(vs, tmpl_i, hopper)
-    dzl, dzh = jax.vmap(domain_height_bounds, (0, None, None))(vs, tmpl_j, hopper)
-    gzl, gzh = gzl + h_i + rho0, gzh + h_i + rho0
-    dzl, dzh = dzl + h_j + rho0, dzh + h_j + rho0
-    # D(j) needs zr > 0 strictly; stay a hair above the virtual ground.
-    dzl = jnp.maximum(dzl, h_j + rho0 + 1e-6)
-    zl, zh = jnp.maximum(gzl, dzl)[:, None], jnp.minimum(gzh, dzh)[:, None]
-    V, Z = jnp.meshgrid(vs, zs, indexing="ij")
-
-    g_lo, g_hi = goal_position_bounds(V, Z - h_i - rho0, tmpl_i, hopper)
-    shift_j = V * safe_sqrt(2.0 * (Z - h_j - rho0) / hopper.g)
-    l = templates.half_length
-    d_lo, d_hi = py_j - shift_j - l, py_j - shift_j + l
+    zl = jnp.maximum(c["gzl"], dzl)[:, None]
+    zh = jnp.minimum(c["gzh"], dzh)[:, None]
     c_lo, c_hi = jax.vmap(jax.vmap(descent_y_bounds, (0, 0, None, None, None)),
                           (0, 0, None, None, None))(V, Z, b_j, terrain, hopper)
     a_lo, a_hi = jax.vmap(jax.vmap(ascent_y_bounds, (0, 0, None, None, None)),
                           (0, 0, None, None, None))(V, Z, b_i, terrain, hopper)
-    dom_lo, dom_hi = jnp.maximum(d_lo, c_lo), jnp.minimum(d_hi, c_hi)
-    y_lo = jnp.maximum(jnp.maximum(g_lo + py_i, a_lo), dom_lo)
-    y_hi = jnp.minimum(jnp.minimum(g_hi + py_i, a_hi), dom_hi)
+    dom_lo, dom_hi = jnp.maximum(c["d_lo"], c_lo), jnp.minimum(c["d_hi"], c_hi)
+    y_lo = jnp.maximum(jnp.maximum(c["g_lo"], a_lo), dom_lo)
+    y_hi = jnp.minimum(jnp.minimum(c["g_hi"], a_hi), dom_hi)
 
     mask = (Z >= zl) & (Z <= zh) & (y_hi > y_lo)
     y_mid = 0.5 * (y_lo + y_hi)
