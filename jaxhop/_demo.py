@@ -25,12 +25,22 @@ def _nearest_inside(initial: np.ndarray, target) -> np.ndarray:
 def demo(out: str = "jaxhop-demo", cache: bool = True, log=print) -> dict:
     """Plan on `reference`, two example runs, nominal and wind sweeps, figures, summary.
 
-    Writes `terrain_domain.png`, `example_runs.png`, `doa_none.png`, `doa_wind.png` and
-    `summary.json` into `out` and prints a short table.
+    Writes `template_regions.png` (Fig. 9), `terrain_domain.png` (Fig. 10),
+    `goal_coverage.png` (Fig. 11), `prepares.png` (Fig. 12), `example_runs.png` (Fig. 13),
+    `run.gif`, `doa_none.png` and `doa_wind.png` (Fig. 16) and `summary.json` into `out`,
+    and prints a short table.
     """
     import matplotlib.pyplot as plt
 
-    from ._plot import doa_figure, global_domain_figure, runs_figure
+    from ._plot import (
+        animate_run,
+        doa_figure,
+        global_domain_figure,
+        goal_coverage_figure,
+        prepares_figure,
+        runs_figure,
+        template_regions_figure,
+    )
 
     os.makedirs(out, exist_ok=True)
     t0 = time.perf_counter()
@@ -56,13 +66,18 @@ def demo(out: str = "jaxhop-demo", cache: bool = True, log=print) -> dict:
         plt.close(fig)
         figures[name.split(".")[0]] = path
 
+    save(template_regions_figure(plan.templates, plan.hopper), "template_regions.png")
     save(global_domain_figure(terrain, grid, inside, plan.goal), "terrain_domain.png")
+    save(goal_coverage_figure(plan), "goal_coverage.png")
+    save(prepares_figure(plan), "prepares.png")
 
     starts = np.stack([_nearest_inside(initial, s) for s in EXAMPLE_STARTS])
     runs = run_batch(plan, starts, key=jax.random.key(0))
     examples = [{k: v[i] for k, v in runs.items()} for i in range(len(starts))]
     save(runs_figure(terrain, examples, plan.goal, "Two reactive BHop runs on 'reference'"),
          "example_runs.png")
+    figures["run_animation"] = animate_run(terrain, examples[0], os.path.join(out, "run.gif"),
+                                           goal=plan.goal)
 
     sweeps = {}
     for noise in ("none", "wind"):
