@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
 import time
 
@@ -96,7 +97,22 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _use_all_cores():
+    """Expose every CPU core as a JAX device (sweeps put one chunk on each).
+
+    Must run before JAX starts its backend; `JAXHOP_CPU_DEVICES` overrides the count.
+    """
+    import jax
+
+    n = os.environ.get("JAXHOP_CPU_DEVICES") or str(os.cpu_count() or 1)
+    try:
+        jax.config.update("jax_num_cpu_devices", max(int(n), 1))
+    except (RuntimeError, ValueError, AttributeError):
+        pass  # backend already started, or an older JAX: keep its default
+
+
 def main(argv=None) -> int:
+    _use_all_cores()
     try:
         args = build_parser().parse_args(argv)
         return int(args.func(args) or 0)

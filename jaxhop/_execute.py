@@ -151,11 +151,14 @@ def in_global_domain(apexes, tables: PlanTables, hopper: Hopper) -> np.ndarray:
 
 def run_batch(plan: Plan, apex0, *, key=None, true_terrain: Terrain | None = None,
               disturbance: Disturbance | None = None, goal=None, max_steps: int = 60,
-              tolerance=None, chunk: int = 1024, progress: bool = False):
+              tolerance=None, chunk: int | None = None, progress: bool = False):
     """Run many initial apexes through the reactive controller.
 
-    The batch is padded to a multiple of `chunk` (fixed shapes: one compilation) and the
-    chunks are dispatched to all visible devices round-robin, asynchronously.
+    The batch is cut into chunks, by default one per visible device (rounded up to a power
+    of two, at most 8192, so that batches of other sizes reuse the compilation); the last
+    chunk is padded. Chunks are dispatched to the devices round-robin, asynchronously, and
+    gathered in order. Run `i` draws its noise from `fold_in(key, i)`, so results do not
+    depend on the chunking or on the number of devices.
 
     Returns:
         dict of NumPy arrays: `code, steps, apexes, footholds, policies`.
@@ -171,8 +174,10 @@ def run_batch(plan: Plan, apex0, *, key=None, true_terrain: Terrain | None = Non
     config = RunConfig(goal=jnp.asarray(plan.goal if goal is None else goal, float),
                        tolerance=jnp.full(3, 0.05) if tolerance is None
                        else jnp.asarray(tolerance, float), max_steps=max_steps)
-    chunk = int(min(chunk, max(n, 1)))
     devices = jax.devices()
+    if chunk is None:
+        per_device = -(-max(n, 1) // len(devices))
+        chunk = min(1 << (per_device - 1).bit_length(), 8192)
     pending = []
     for i, start in enumerate(range(0, n, chunk)):
         idx = np.arange(start, start + chunk).clip(max=n - 1)

@@ -1,0 +1,38 @@
+"""A sweep split over several devices equals the one-device sweep, run by run."""
+
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+
+_SCRIPT = r"""
+import json, sys, jax
+import numpy as np, jaxhop
+plan = jaxhop.build_plan(jaxhop.builtin_terrain("flat"), progress=False)
+grid = jaxhop.sweep_grid(plan.terrain, dy=0.1, dz=0.1)
+init = grid[jaxhop.in_global_domain(grid, plan.tables(), plan.hopper)]
+r = jaxhop.run_batch(plan, init, key=jax.random.key(5),
+                     disturbance=jaxhop.disturbance_for("sensor"))
+print(json.dumps({"devices": len(jax.devices()), "code": r["code"].tolist(),
+                  "steps": r["steps"].tolist(),
+                  "last": np.nan_to_num(r["apexes"][:, -1]).round(12).tolist()}))
+"""
+
+
+def _run(n_devices, tmp_path):
+    env = dict(os.environ, XLA_FLAGS=f"--xla_force_host_platform_device_count={n_devices}",
+               JAXHOP_CACHE=str(tmp_path))
+    out = subprocess.run([sys.executable, "-c", _SCRIPT], env=env, capture_output=True,
+                         text=True, timeout=600, check=True)
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+@pytest.mark.slow
+def test_four_devices_equal_one(tmp_path):
+    one, four = _run(1, tmp_path), _run(4, tmp_path)
+    assert one["devices"] == 1 and four["devices"] == 4
+    assert len(one["code"]) > 100
+    assert one["code"] == four["code"] and one["steps"] == four["steps"]
+    assert one["last"] == four["last"]
