@@ -77,6 +77,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--dz", default="0.05")
     p.add_argument("--ydot0", default="0.5")
     p.add_argument("--plot", default=None, metavar="PATH", help="write the map as PNG")
+    p.add_argument("--checkpoint", default=None, metavar="DIR",
+                   help="save finished chunks here; a rerun resumes where it stopped")
+    p.add_argument("--chunk", default=None, help="runs per chunk (default: one per device)")
     p.set_defaults(func=cmd_sweep)
     p = sub.add_parser("run", help="one run from one initial apex")
     _common(p, noise=True)
@@ -226,12 +229,20 @@ def _sweep_result(args, terrain, plan, max_steps, tol, disturbance, key, dy, dz,
     if initial.shape[0] == 0:
         raise InputError("no grid state lies in the global domain (is the goal reachable?)")
     result = run_batch(plan, initial, key=key, true_terrain=terrain, disturbance=disturbance,
-                       max_steps=max_steps, progress=True, tolerance=np.asarray(tol))
+                       max_steps=max_steps, progress=True, tolerance=np.asarray(tol),
+                       chunk=args.chunk_size, checkpoint=args.checkpoint)
     return summarize(result, time.perf_counter() - t0), initial, result
 
 
 def cmd_sweep(args) -> int:
     dy, dz = _positive(args.dy, "--dy"), _positive(args.dz, "--dz")
+    args.chunk_size = int(_positive(args.chunk, "--chunk")) if args.chunk else None
+    if args.checkpoint:
+        try:
+            os.makedirs(args.checkpoint, exist_ok=True)
+        except OSError as err:
+            raise InputError(f"--checkpoint: cannot create {args.checkpoint} "
+                             f"({err.strerror})") from None
     (ydot0,) = _floats(args.ydot0, 1, "--ydot0")
     terrain, plan, seed, max_steps, tol, disturbance, key = _prepare(args)
     out, initial, result = _sweep_result(args, terrain, plan, max_steps, tol, disturbance, key,

@@ -151,7 +151,8 @@ def in_global_domain(apexes, tables: PlanTables, hopper: Hopper) -> np.ndarray:
 
 def run_batch(plan: Plan, apex0, *, key=None, true_terrain: Terrain | None = None,
               disturbance: Disturbance | None = None, goal=None, max_steps: int = 60,
-              tolerance=None, chunk: int | None = None, progress: bool = False):
+              tolerance=None, chunk: int | None = None, progress: bool = False,
+              checkpoint: str | None = None):
     """Run many initial apexes through the reactive controller.
 
     The batch is cut into chunks, by default one per visible device (rounded up to a power
@@ -159,6 +160,11 @@ def run_batch(plan: Plan, apex0, *, key=None, true_terrain: Terrain | None = Non
     chunk is padded. Chunks are dispatched to the devices round-robin, asynchronously, and
     gathered in order. Run `i` draws its noise from `fold_in(key, i)`, so results do not
     depend on the chunking or on the number of devices.
+
+    With `checkpoint` (a directory), each finished chunk is written there atomically under a
+    fingerprint of everything the results depend on; a rerun with the same inputs loads the
+    finished chunks and computes only the rest, so an interrupted sweep loses at most the
+    chunks in flight.
 
     Returns:
         dict of NumPy arrays: `code, steps, apexes, footholds, policies`.
@@ -178,22 +184,91 @@ def run_batch(plan: Plan, apex0, *, key=None, true_terrain: Terrain | None = Non
     if chunk is None:
         per_device = -(-max(n, 1) // len(devices))
         chunk = min(1 << (per_device - 1).bit_length(), 8192)
+    store = None
+    if checkpoint is not None:
+        store = _ChunkStore(checkpoint, _fingerprint(plan, apex0, key, true_terrain,
+                                                     disturbance, config, chunk))
     pending = []
     for i, start in enumerate(range(0, n, chunk)):
+        stop = min(start + chunk, n)
+        done = store.load(start, stop) if store else None
+        if done is not None:
+            pending.append((start, stop, done))
+            continue
         idx = np.arange(start, start + chunk).clip(max=n - 1)
         dev = devices[i % len(devices)]
         args = jax.device_put((jnp.asarray(apex0[idx]), keys[idx]), dev)
-        pending.append((start, min(start + chunk, n),
+        pending.append((start, stop,
                         _batch_jit(*args, tables, true_terrain, plan.hopper, disturbance, config)))
-    parts = {k: [] for k in ("code", "steps", "apexes", "footholds", "policies")}
+    parts = {k: [] for k in RUN_FIELDS}
     bar = tqdm(total=n, desc="runs", unit="run", disable=not progress, file=sys.stderr,
                leave=False)
     for start, stop, out in pending:
-        for name, arr in zip(parts, out):
-            parts[name].append(np.asarray(arr)[: stop - start])
+        arrays = [np.asarray(arr)[: stop - start] for arr in out]
+        if store:
+            store.save(start, stop, arrays)
+        for name, arr in zip(parts, arrays):
+            parts[name].append(arr)
         bar.update(stop - start)
     bar.close()
     return {k: np.concatenate(v) for k, v in parts.items()}
+
+
+RUN_FIELDS = ("code", "steps", "apexes", "footholds", "policies")
+
+
+def _fingerprint(plan: Plan, apex0, key, true_terrain, disturbance, config, chunk) -> str:
+    import hashlib
+
+    from . import __version__
+
+    h = hashlib.sha256()
+    for part in (__version__, chunk, plan.terrain.blocks(), true_terrain.blocks(),
+                 plan.goal.tolist(), config.max_steps,
+                 [float(plan.hopper.m), float(plan.hopper.g), float(plan.hopper.rho0)]):
+        h.update(repr(part).encode())
+    for arr in (plan.order, plan.goals, plan.situated, apex0, jax.random.key_data(key),
+                disturbance.wind, disturbance.sensor, config.goal, config.tolerance):
+        h.update(np.ascontiguousarray(np.asarray(arr)).tobytes())
+    return h.hexdigest()
+
+
+class _ChunkStore:
+    """Finished chunks of a sweep on disk: `<dir>/<fingerprint>/chunk-<start>-<stop>.npz`."""
+
+    def __init__(self, root: str, fingerprint: str):
+        import os
+
+        self.dir = os.path.join(root, fingerprint[:32])
+        os.makedirs(self.dir, exist_ok=True)
+
+    def _path(self, start, stop):
+        import os
+
+        return os.path.join(self.dir, f"chunk-{start:09d}-{stop:09d}.npz")
+
+    def load(self, start, stop):
+        import zipfile
+
+        try:
+            with np.load(self._path(start, stop)) as z:
+                arrays = [z[k] for k in RUN_FIELDS]
+        except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile):
+            return None  # missing or unreadable: compute it again
+        if any(a.shape[0] != stop - start for a in arrays):
+            return None
+        return arrays
+
+    def save(self, start, stop, arrays):
+        import os
+
+        path = self._path(start, stop)
+        tmp = path + ".tmp"
+        with open(tmp, "wb") as f:
+            np.savez(f, **dict(zip(RUN_FIELDS, arrays)))
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
 
 
 def sweep_grid(terrain: Terrain, ydot0: float = 0.5, dy: float = 0.05, dz: float = 0.05,
