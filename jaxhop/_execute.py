@@ -69,21 +69,41 @@ def first_match(apex, tables: PlanTables, hopper: Hopper):
     return found, ids[k], tables.best_inst[ids[k]]
 
 
-def decide(apex, tables: PlanTables, hopper: Hopper):
+MODELS = ("bhop", "slip")
+
+
+def decide(apex, tables: PlanTables, hopper: Hopper, model: str = "bhop"):
     """Controls for one measured apex: first match, deadbeat to its goal, clip to its limits.
+
+    `model = "bhop"`: BHop deadbeat (eqs 25-29) clipped to the template's limits;
+    `"slip"`: the position-aware SLIP deadbeat (eqs 12-16) within the SLIP limits.
 
     Returns:
         `(found, u, instantiated)`.
     """
     found, s, a = first_match(apex, tables, hopper)
     nt = tables.templates.n
-    tmpl = tables.templates.row(s % nt)
     h = tables.table.centre[s // nt, 1]
+    if model == "slip":
+        from ._slip_deadbeat import deadbeat_slip
+
+        u, _ = deadbeat_slip(apex, tables.goals[a], h, hopper)
+        return found, u, a
+    tmpl = tables.templates.row(s % nt)
     u = deadbeat_bhop(apex, tables.goals[a], h, hopper)
     lo = jnp.stack([tmpl.dy_lo, tmpl.th_lo, tmpl.k_lo])
     hi = jnp.stack([tmpl.dy_hi, tmpl.th_hi, tmpl.k_hi])
     u = jnp.where(jnp.isfinite(u), u, hi)
     return found, jnp.clip(u, lo, hi), a
+
+
+def stride(apex, u, terrain: Terrain, hopper: Hopper, wind=0.0, model: str = "bhop"):
+    """One stride of the chosen model on the terrain: `(next_apex, code, foothold)`."""
+    if model == "slip":
+        from ._slip import slip_stride
+
+        return slip_stride(apex, u, terrain, hopper, wind)
+    return bhop_stride(apex, u, terrain, hopper, wind)
 
 
 class RunConfig(eqx.Module):
@@ -92,6 +112,7 @@ class RunConfig(eqx.Module):
     goal: jnp.ndarray
     tolerance: jnp.ndarray = eqx.field(default_factory=lambda: jnp.full(3, 0.05))
     max_steps: int = eqx.field(static=True, default=60)
+    model: str = eqx.field(static=True, default="bhop")
 
 
 def run_one(apex0, key, tables: PlanTables, true_terrain: Terrain, hopper: Hopper,
@@ -112,8 +133,9 @@ def run_one(apex0, key, tables: PlanTables, true_terrain: Terrain, hopper: Hoppe
         at_goal = jnp.all(jnp.abs(apex - config.goal) <= config.tolerance)
         noise = jax.random.uniform(jax.random.fold_in(key, k), (3,), minval=-1.0, maxval=1.0)
         measured = apex + noise * disturbance.sensor
-        found, u, a = decide(measured, tables, hopper)
-        nxt, s_code, foot = bhop_stride(apex, u, true_terrain, hopper, disturbance.wind)
+        found, u, a = decide(measured, tables, hopper, config.model)
+        nxt, s_code, foot = stride(apex, u, true_terrain, hopper, disturbance.wind,
+                                   config.model)
         s_code = jnp.where(jnp.all(jnp.isfinite(nxt)) | (s_code != OK), s_code, SOLVER)
         new_code = jnp.where(at_goal, SUCCESS, jnp.where(~found, OUTSIDE_DOMAIN,
                                                          jnp.where(s_code == OK, RUNNING,
@@ -152,7 +174,7 @@ def in_global_domain(apexes, tables: PlanTables, hopper: Hopper) -> np.ndarray:
 def run_batch(plan: Plan, apex0, *, key=None, true_terrain: Terrain | None = None,
               disturbance: Disturbance | None = None, goal=None, max_steps: int = 60,
               tolerance=None, chunk: int | None = None, progress: bool = False,
-              checkpoint: str | None = None):
+              checkpoint: str | None = None, model: str = "bhop"):
     """Run many initial apexes through the reactive controller.
 
     The batch is cut into chunks, by default one per visible device (rounded up to a power
@@ -179,7 +201,7 @@ def run_batch(plan: Plan, apex0, *, key=None, true_terrain: Terrain | None = Non
     disturbance = Disturbance() if disturbance is None else disturbance
     config = RunConfig(goal=jnp.asarray(plan.goal if goal is None else goal, float),
                        tolerance=jnp.full(3, 0.05) if tolerance is None
-                       else jnp.asarray(tolerance, float), max_steps=max_steps)
+                       else jnp.asarray(tolerance, float), max_steps=max_steps, model=model)
     devices = jax.devices()
     if chunk is None:
         per_device = -(-max(n, 1) // len(devices))
@@ -223,8 +245,8 @@ def _fingerprint(plan: Plan, apex0, key, true_terrain, disturbance, config, chun
     from . import __version__
 
     h = hashlib.sha256()
-    for part in (__version__, chunk, plan.terrain.blocks(), true_terrain.blocks(),
-                 plan.goal.tolist(), config.max_steps,
+    for part in (__version__, chunk, config.model, plan.terrain.blocks(),
+                 true_terrain.blocks(), plan.goal.tolist(), config.max_steps,
                  [float(plan.hopper.m), float(plan.hopper.g), float(plan.hopper.rho0)]):
         h.update(repr(part).encode())
     for arr in (plan.order, plan.goals, plan.situated, apex0, jax.random.key_data(key),
