@@ -18,6 +18,8 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _floats(text: str, n: int, field: str):
+    if not isinstance(text, str):  # argparse turns a bare "--" value into a list
+        raise InputError(f"{field}: expected {n} comma-separated numbers, got {text!r}")
     parts = text.split(",")
     if len(parts) != n:
         raise InputError(f"{field}: expected {n} comma-separated numbers, got {text!r}")
@@ -38,6 +40,8 @@ def _positive(text: str, field: str) -> float:
 
 
 def _seed(text: str) -> int:
+    if not isinstance(text, str):
+        raise InputError(f"--seed: expected a non-negative integer, got {text!r}")
     try:
         v = int(text)
     except ValueError:
@@ -148,7 +152,7 @@ def _terrain_and_goal(args):
     from ._terrain import load_terrain
 
     terrain = load_terrain(args.terrain)
-    goal = _floats(args.goal, 3, "--goal") if args.goal else None
+    goal = _floats(args.goal, 3, "--goal") if args.goal is not None else None
     if goal is None and terrain.goal is None:
         raise InputError(f"terrain {terrain.name!r} has no default goal: pass --goal y,z,ydot")
     return terrain, goal
@@ -236,8 +240,8 @@ def _sweep_result(args, terrain, plan, max_steps, tol, disturbance, key, dy, dz,
 
 def cmd_sweep(args) -> int:
     dy, dz = _positive(args.dy, "--dy"), _positive(args.dz, "--dz")
-    args.chunk_size = int(_positive(args.chunk, "--chunk")) if args.chunk else None
-    if args.checkpoint:
+    args.chunk_size = int(_positive(args.chunk, "--chunk")) if args.chunk is not None else None
+    if args.checkpoint is not None:
         try:
             os.makedirs(args.checkpoint, exist_ok=True)
         except OSError as err:

@@ -50,6 +50,7 @@ def test_terrain_loader_accepts_or_raises_input_error(data):
 def test_cli_malformed_terrain_file_exits_2(tmp_path_factory, capsys, data):
     path = tmp_path_factory.mktemp("t") / "t.json"
     path.write_text(json.dumps(data, allow_nan=True))
+    capsys.readouterr()
     try:
         terrain_from_dict(data)
         valid = True
@@ -107,3 +108,39 @@ def test_deployment_invariant_and_nominal_success_on_random_terrains(seed):
     summary, _, _ = sweep(plan, dy=0.15, dz=0.15)
     assert summary["n_initial_conditions"] > 0
     assert summary["success_rate"] == 1.0 and summary["failures"]["solver"] == 0
+
+
+bad_number = st.one_of(st.sampled_from(["nan", "inf", "-inf", "", "1e400", "x", "0x10", "--"]),
+                       st.text(alphabet="abc,;: ", min_size=1, max_size=5))
+triple_bad = st.one_of(bad_number,
+                       st.lists(st.floats(-5, 5), min_size=1, max_size=5)
+                       .filter(lambda v: len(v) != 3).map(lambda v: ",".join(map(str, v))),
+                       st.tuples(st.floats(-5, 5), st.floats(-5, 5), bad_number)
+                       .map(lambda t: f"{t[0]},{t[1]},{t[2]}"))
+positive_bad = st.one_of(bad_number, st.floats(-10, 0).map(str))
+
+
+@settings(max_examples=600, deadline=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(st.one_of(
+    st.tuples(st.sampled_from(["sweep", "run"]), st.sampled_from(["--goal", "--tolerance"]),
+              triple_bad),
+    st.tuples(st.just("run"), st.just("--apex"), triple_bad),
+    st.tuples(st.just("sweep"), st.sampled_from(["--dy", "--dz", "--chunk", "--max-steps"]),
+              positive_bad),
+    st.tuples(st.sampled_from(["sweep", "run"]), st.just("--seed"),
+              st.one_of(bad_number, st.integers(-10**6, -1).map(str),
+                        st.just(str(2**63))))))
+def test_cli_rejects_bad_numbers_with_exit_2(capsys, case):
+    command, option, value = case
+    capsys.readouterr()  # examples share the fixture: start from empty streams
+    if option == "--tolerance" and value.count(",") == 2:
+        parts = value.split(",")
+        try:
+            if all(math.isfinite(float(p)) and float(p) >= 0 for p in parts):
+                return  # a valid tolerance
+        except ValueError:
+            pass
+    assert main([command, "--terrain", "flat", f"{option}={value}"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("jaxhop: error:") and len(err.splitlines()) == 1
