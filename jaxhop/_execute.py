@@ -127,9 +127,12 @@ def run_one(apex0, key, tables: PlanTables, true_terrain: Terrain, hopper: Hoppe
         `(max_steps + 1, 3)` apex sequence (NaN after the end), `(max_steps, 2)` footholds and
         the instantiated policy used at each stride (-1 after the end).
     """
-    def step(carry, k):
-        apex, code, steps = carry
-        running = code == RUNNING
+    def cond(carry):
+        _, code, _, k, _ = carry
+        return (code == RUNNING) & (k < config.max_steps)
+
+    def body(carry):
+        apex, code, steps, k, (apexes, feet, used) = carry
         at_goal = jnp.all(jnp.abs(apex - config.goal) <= config.tolerance)
         noise = jax.random.uniform(jax.random.fold_in(key, k), (3,), minval=-1.0, maxval=1.0)
         measured = apex + noise * disturbance.sensor
@@ -137,23 +140,25 @@ def run_one(apex0, key, tables: PlanTables, true_terrain: Terrain, hopper: Hoppe
         nxt, s_code, foot = stride(apex, u, true_terrain, hopper, disturbance.wind,
                                    config.model)
         s_code = jnp.where(jnp.all(jnp.isfinite(nxt)) | (s_code != OK), s_code, SOLVER)
-        new_code = jnp.where(at_goal, SUCCESS, jnp.where(~found, OUTSIDE_DOMAIN,
-                                                         jnp.where(s_code == OK, RUNNING,
-                                                                   s_code)))
-        stepping = running & ~at_goal & found
-        code = jnp.where(running, new_code, code)
-        apex = jnp.where(stepping & (s_code == OK), nxt, apex)
-        steps = steps + stepping.astype(jnp.int32)
-        out = (jnp.where(stepping & (s_code == OK), nxt, jnp.nan),
-               jnp.where(stepping, foot, jnp.nan), jnp.where(stepping, a, -1))
-        return (apex, code, steps), out
+        code = jnp.where(at_goal, SUCCESS, jnp.where(~found, OUTSIDE_DOMAIN,
+                                                     jnp.where(s_code == OK, RUNNING, s_code)))
+        stepping = ~at_goal & found
+        ok = stepping & (s_code == OK)
+        apexes = apexes.at[k + 1].set(jnp.where(ok, nxt, jnp.nan))
+        feet = feet.at[k].set(jnp.where(stepping, foot, jnp.nan))
+        used = used.at[k].set(jnp.where(stepping, a, -1))
+        apex = jnp.where(ok, nxt, apex)
+        return apex, code, steps + stepping.astype(jnp.int32), k + 1, (apexes, feet, used)
 
-    init = (jnp.asarray(apex0, float), jnp.asarray(RUNNING), jnp.asarray(0, jnp.int32))
-    (apex, code, steps), (apexes, feet, used) = jax.lax.scan(
-        step, init, jnp.arange(config.max_steps))
+    n = config.max_steps
+    apex0 = jnp.asarray(apex0, float)
+    buffers = (jnp.full((n + 1, 3), jnp.nan).at[0].set(apex0), jnp.full((n, 2), jnp.nan),
+               jnp.full((n,), -1, jnp.int32))
+    # A while loop, not a scan: a batch stops when its longest run ends.
+    init = (apex0, jnp.asarray(RUNNING), jnp.asarray(0, jnp.int32), jnp.asarray(0), buffers)
+    apex, code, steps, _, (apexes, feet, used) = jax.lax.while_loop(cond, body, init)
     at_goal = jnp.all(jnp.abs(apex - config.goal) <= config.tolerance)
     code = jnp.where(code == RUNNING, jnp.where(at_goal, SUCCESS, MAX_STEPS), code)
-    apexes = jnp.concatenate([jnp.asarray(apex0, float)[None], apexes])
     return code, steps, apexes, feet, used
 
 

@@ -40,7 +40,7 @@ from ._terrain import Terrain, segments
 SAFETY_WE = 0.5
 SAFETY_WG = 1.0
 _PAIR_CHUNK = 4096
-_FORMAT = 2
+_FORMAT = 3
 PROBE_HALF_WIDTH = 0.2
 _DEFAULT_GRID = PairGrid()
 

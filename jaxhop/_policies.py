@@ -294,7 +294,9 @@ def pair_goal(ti, seg_i, tj, seg_j, box, table: SituatedTable, templates: Templa
     y_mid = 0.5 * (y_lo + y_hi)
     margin = jnp.minimum(jnp.minimum(0.5 * (y_hi - y_lo), jnp.minimum(Z - zl, zh - Z)),
                          jnp.minimum(_axis_margin(mask, dz, 1), _axis_margin(mask, dv, 0)))
-    margin = jnp.where(mask, margin, -jnp.inf)
+    # Many cells tie (the y width is the same in every cell); rounding to 1 nm makes the
+    # first of the tied cells win whatever the last bits of the arithmetic are.
+    margin = jnp.where(mask, jnp.round(margin, 9), -jnp.inf)
     best = jnp.argmax(margin)
     a, b = jnp.unravel_index(best, margin.shape)
 

@@ -1,0 +1,175 @@
+"""Reactive execution (Fig. 8) and domain-of-attraction sweeps, one run at a time."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from ._model import (
+    FAILURE_NAMES,
+    MAX_STEPS,
+    OK,
+    OUTSIDE_DOMAIN,
+    RUNNING,
+    SOLVER,
+    SUCCESS,
+    Terrain,
+    bhop_stride,
+    deadbeat_bhop,
+    touchdown_one,
+)
+from ._plan import Plan
+
+_BIG = np.iinfo(np.int32).max
+
+
+class Controller:
+    """The execution lookup of a plan: the first deployed policy of every situated policy.
+
+    Every instantiated policy of one situated policy has that policy's domain, so only the
+    first deployed one can be a first match; `best_pos[s]` is its position in the order.
+    """
+
+    def __init__(self, plan: Plan):
+        self.plan = plan
+        n_sit = plan.situation.n_situated
+        self.best_pos = np.full(n_sit, _BIG, np.int64)
+        self.best_inst = np.zeros(n_sit, np.int64)
+        for pos in range(plan.order.size - 1, -1, -1):
+            a = plan.order[pos]
+            s = plan.situated[a]
+            self.best_pos[s], self.best_inst[s] = pos, a
+        t = plan.situation.templates
+        self.lo = np.stack([t.col("dy_lo"), t.col("th_lo"), t.col("k_lo")], 1)
+        self.hi = np.stack([t.col("dy_hi"), t.col("th_hi"), t.col("k_hi")], 1)
+
+    def first_match(self, apex):
+        """`(found, situated, instantiated)` of the first deployed policy containing `apex`."""
+        ids, inside = self.plan.situation.candidate_situated_one(np.asarray(apex, float))
+        pos = np.where(inside, self.best_pos[ids], _BIG)
+        k = int(np.argmin(pos))
+        return bool(pos[k] < _BIG), int(ids[k]), int(self.best_inst[ids[k]])
+
+    def first_match_scan(self, apex):
+        """The literal first match: scan the whole order (slow; a cross-check)."""
+        sit = self.plan.situation
+        code, block, _, y_foot, _ = touchdown_one(apex, sit.terrain, sit.hopper)
+        if code != OK:
+            return False, -1
+        nt, l = sit.templates.n, sit.templates.half_length
+        on_seg = ((sit.segs.block == block)
+                  & (np.abs(y_foot - sit.segs.centre[:, 0]) <= l + 1e-12))
+        apex = np.asarray(apex, float)
+        contains = np.zeros(sit.n_situated, bool)
+        for seg in np.nonzero(on_seg)[0]:
+            py, h = sit.segs.centre[seg]
+            for t in range(nt):
+                reg = sit.regions[t]
+                contains[seg * nt + t] = reg.domain_contains(
+                    apex[0] - py, apex[1] - h - sit.hopper.rho0, apex[2])
+        hit = contains[self.plan.situated[self.plan.order]]
+        if not hit.any():
+            return False, -1
+        return True, int(self.plan.order[np.argmax(hit)])
+
+    def decide(self, apex):
+        """Controls for one measured apex: `(found, u, instantiated)`."""
+        found, s, a = self.first_match(apex)
+        sit = self.plan.situation
+        nt = sit.templates.n
+        h = sit.segs.centre[s // nt, 1]
+        u = deadbeat_bhop(apex, self.plan.goals[a], h, sit.hopper)
+        lo, hi = self.lo[s % nt], self.hi[s % nt]
+        u = np.where(np.isfinite(u), u, hi)
+        return found, np.clip(u, lo, hi), a
+
+
+def run_one(ctrl: Controller, apex0, *, true_terrain: Terrain | None = None, wind=0.0,
+            noise=None, goal=None, tolerance=(0.05, 0.05, 0.05), max_steps=60):
+    """One run of the reactive controller (mirrors `jaxhop._execute.run_one`).
+
+    Arguments:
+        noise: `(max_steps, 3)` additive measurement noise per apex (already scaled), or None.
+
+    Returns:
+        `(code, steps, apexes)`: result code, strides taken, the visited apexes.
+    """
+    plan = ctrl.plan
+    terrain = plan.terrain if true_terrain is None else true_terrain
+    goal = plan.goal if goal is None else np.asarray(goal, float)
+    tol = np.asarray(tolerance, float)
+    apex = np.asarray(apex0, float)
+    apexes = [apex]
+    code, steps = RUNNING, 0
+    for k in range(max_steps):
+        if np.all(np.abs(apex - goal) <= tol):
+            code = SUCCESS
+            break
+        measured = apex if noise is None else apex + noise[k]
+        found, u, _ = ctrl.decide(measured)
+        if not found:
+            code = OUTSIDE_DOMAIN
+            break
+        nxt, s_code, _ = bhop_stride(apex, u, terrain, plan.hopper, wind)
+        if s_code == OK and not np.all(np.isfinite(nxt)):
+            s_code = SOLVER
+        steps += 1
+        if s_code != OK:
+            code = s_code
+            break
+        apex = nxt
+        apexes.append(apex)
+    if code == RUNNING:
+        code = SUCCESS if np.all(np.abs(apex - goal) <= tol) else MAX_STEPS
+    return code, steps, np.asarray(apexes)
+
+
+def sweep_grid(terrain: Terrain, ydot0=0.5, dy=0.05, dz=0.05, z_range=None):
+    """Initial apexes on a `(y, z)` grid (SPEC section 12)."""
+    y0, y1 = terrain.y_range
+    if z_range is None:
+        z_range = (float(terrain.heights.min()) + 1.0, float(terrain.heights.max()) + 2.6)
+    ys = np.arange(y0, y1 + 1e-9, dy)
+    zs = np.arange(z_range[0], z_range[1] + 1e-9, dz)
+    Y, Z = np.meshgrid(ys, zs, indexing="ij")
+    return np.stack([Y.ravel(), Z.ravel(), np.full(Y.size, ydot0)], axis=1)
+
+
+def in_global_domain(ctrl: Controller, apexes) -> np.ndarray:
+    return np.array([ctrl.first_match(z)[0] for z in np.atleast_2d(apexes)], bool)
+
+
+def run_batch(ctrl: Controller, initial, *, noise=None, **kwargs):
+    """Every initial apex in turn. `noise`: `(n, max_steps, 3)` or None."""
+    initial = np.atleast_2d(initial)
+    codes = np.zeros(initial.shape[0], np.int64)
+    steps = np.zeros(initial.shape[0], np.int64)
+    for i, z0 in enumerate(initial):
+        codes[i], steps[i], _ = run_one(ctrl, z0, noise=None if noise is None else noise[i],
+                                        **kwargs)
+    return {"code": codes, "steps": steps}
+
+
+def summarize(result: dict, seconds: float) -> dict:
+    code, steps = result["code"], result["steps"]
+    ok = code == SUCCESS
+    return {
+        "n_initial_conditions": int(code.size),
+        "success_rate": float(ok.mean()) if code.size else 0.0,
+        "mean_steps": float(steps[ok].mean()) if ok.any() else 0.0,
+        "max_steps": int(steps[ok].max()) if ok.any() else 0,
+        "failures": {name: int((code == i + 1).sum()) for i, name in enumerate(FAILURE_NAMES)},
+        "seconds": round(seconds, 3),
+    }
+
+
+def sweep(plan: Plan, *, initial=None, ydot0=0.5, dy=0.05, dz=0.05, **kwargs):
+    """Domain-of-attraction sweep: `(summary, initial_states, result)`."""
+    t0 = time.perf_counter()
+    ctrl = Controller(plan)
+    if initial is None:
+        grid = sweep_grid(plan.terrain, ydot0, dy, dz)
+        initial = grid[in_global_domain(ctrl, grid)]
+    result = run_batch(ctrl, initial, **kwargs)
+    return summarize(result, time.perf_counter() - t0), initial, result

@@ -1,0 +1,312 @@
+"""Situated and instantiated policies: domain lookup, goal choice on the 16 x 16 grid,
+goal policies and safety sampling (section III-C, eqs 8, 30-31, 34).
+
+The collision-free clauses (descent to the segment, rise to the goal) are bounds on `y` at
+fixed `(ydot, z)`, as in `jaxhop._policies`; only blocks that can bind are evaluated.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ._model import (
+    INF,
+    OK,
+    Hopper,
+    Segments,
+    Templates,
+    Terrain,
+    safe_sqrt,
+    touchdown,
+    touchdown_one,
+)
+from ._regions import TemplateRegions
+
+
+class Situation:
+    """A terrain cut into segments, with the lookup arrays of `jaxhop._policies.SituatedTable`
+    and the per-template regions."""
+
+    def __init__(self, terrain: Terrain, segs: Segments, templates: Templates, hopper: Hopper):
+        self.terrain, self.segs, self.templates, self.hopper = terrain, segs, templates, hopper
+        self.regions = [TemplateRegions(templates, i, hopper) for i in range(templates.n)]
+        n_blocks = terrain.n_blocks
+        self.block_count = np.bincount(segs.block, minlength=n_blocks)
+        self.block_first = np.concatenate([[0], np.cumsum(self.block_count)[:-1]])
+        self.block_left = terrain.starts.copy()
+        for b in range(n_blocks):
+            if self.block_count[b]:
+                first = segs.centre[self.block_first[b], 0]
+                self.block_left[b] = first - 0.5 * templates.seg_length
+        self.tcols = {name: templates.col(name) for name in ("v_lo", "v_hi", "e_lo", "e_hi")}
+
+    @property
+    def n_situated(self) -> int:
+        return self.segs.n * self.templates.n
+
+    def candidate_situated(self, apexes):
+        """Situated policies near the nominal touchdown of each apex, and which contain it.
+
+        Returns:
+            `(ids, inside)`, both `(n, 3 * n_templates)`.
+        """
+        apexes = np.atleast_2d(np.asarray(apexes, float))
+        hp, seg_len, nt = self.hopper, self.templates.seg_length, self.templates.n
+        code, block, _, y_foot, _ = touchdown(apexes, self.terrain, hp)
+        with np.errstate(invalid="ignore"):
+            k = np.floor((y_foot - self.block_left[block]) / seg_len)
+        k = np.nan_to_num(k, nan=0.0).clip(-2**31, 2**31 - 1).astype(np.int64)
+        n_on = self.block_count[block]
+        local = np.clip(k[:, None] + np.arange(-1, 2), 0, np.maximum(n_on - 1, 0)[:, None])
+        segs = self.block_first[block][:, None] + local
+        py, h = self.segs.centre[segs, 0], self.segs.centre[segs, 1]
+        on_seg = ((np.abs(y_foot[:, None] - py) <= 0.5 * seg_len + 1e-12)
+                  & (n_on > 0)[:, None] & (code == OK)[:, None])
+        on_seg &= (np.arange(3) == 0) | (local != np.roll(local, 1, axis=1))
+        ids = (segs[:, :, None] * nt + np.arange(nt)).reshape(apexes.shape[0], -1)
+        # Template test (eqs 38-41) relative to each of the three segments.
+        y_rel = (apexes[:, 0:1] - py)[:, :, None]
+        zr = (apexes[:, 1:2] - h - hp.rho0)[:, :, None]
+        ydot = apexes[:, 2, None, None]
+        c = self.tcols
+        energy = 0.5 * hp.m * ydot**2 + hp.m * hp.g * zr
+        y_td = y_rel + ydot * safe_sqrt(2.0 * zr / hp.g)
+        l = self.templates.half_length
+        inside = ((ydot >= c["v_lo"]) & (ydot <= c["v_hi"]) & (zr > 0) & (energy >= c["e_lo"])
+                  & (energy <= c["e_hi"]) & (y_td >= -l) & (y_td <= l))
+        return ids, (inside & on_seg[:, :, None]).reshape(apexes.shape[0], -1)
+
+    def candidate_situated_one(self, apex):
+        """`candidate_situated` for one apex: `(ids, inside)`, each `(3 * n_templates,)`."""
+        hp, seg_len, nt = self.hopper, self.templates.seg_length, self.templates.n
+        code, block, _, y_foot, _ = touchdown_one(apex, self.terrain, hp)
+        n_on = int(self.block_count[block])
+        k = (y_foot - self.block_left[block]) / seg_len
+        k = math.floor(k) if math.isfinite(k) else 0
+        local = [min(max(k + d, 0), max(n_on - 1, 0)) for d in (-1, 0, 1)]
+        segs = [int(self.block_first[block]) + j for j in local]
+        on_seg = np.array([abs(y_foot - self.segs.centre[sg, 0]) <= 0.5 * seg_len + 1e-12
+                           and n_on > 0 and code == OK and (i == 0 or local[i] != local[i - 1])
+                           for i, sg in enumerate(segs)])
+        ids = (np.asarray(segs)[:, None] * nt + np.arange(nt)).reshape(-1)
+        if not on_seg.any():
+            return ids, np.zeros(ids.size, bool)
+        py, h = self.segs.centre[segs, 0], self.segs.centre[segs, 1]
+        y_rel = (apex[0] - py)[:, None]
+        zr = (apex[1] - h - hp.rho0)[:, None]
+        ydot = float(apex[2])
+        c = self.tcols
+        energy = 0.5 * hp.m * ydot**2 + hp.m * hp.g * zr
+        y_td = y_rel + ydot * safe_sqrt(2.0 * zr / hp.g)
+        l = self.templates.half_length
+        inside = ((ydot >= c["v_lo"]) & (ydot <= c["v_hi"]) & (zr > 0) & (energy >= c["e_lo"])
+                  & (energy <= c["e_hi"]) & (y_td >= -l) & (y_td <= l))
+        return ids, (inside & on_seg[:, None]).reshape(-1)
+
+    # --- collision-free y bounds ---
+
+    def descent_y_bounds(self, ydot, z, block):
+        """Apex `y` interval whose foot meets no higher block before landing on `block`."""
+        ter, hp = self.terrain, self.hopper
+        h = ter.heights[block]
+        higher = ter.heights > h
+        lo = np.full(np.broadcast(ydot, z).shape, -INF)
+        hi = np.full(lo.shape, INF)
+        left = np.nonzero(higher & (ter.ends <= ter.starts[block]))[0]
+        right = np.nonzero(higher & (ter.starts >= ter.ends[block]))[0]
+        for b in left:
+            t_h = safe_sqrt(2.0 * (z - hp.rho0 - ter.heights[b]) / hp.g)
+            lo = np.maximum(lo, np.where(ydot > 0, ter.ends[b] - ydot * t_h, -INF))
+        for b in right:
+            t_h = safe_sqrt(2.0 * (z - hp.rho0 - ter.heights[b]) / hp.g)
+            hi = np.minimum(hi, np.where(ydot < 0, ter.starts[b] - ydot * t_h, INF))
+        return np.maximum(lo, ter.starts[0]), np.minimum(hi, ter.ends[-1])
+
+    def ascent_y_bounds(self, ydot, z, block):
+        """Goal `y` interval whose rise from `block` meets no block higher than the COM."""
+        ter, hp = self.terrain, self.hopper
+        z_lo = ter.heights[block] + hp.rho0
+        lo = np.full(np.broadcast(ydot, z).shape, -INF)
+        hi = np.full(lo.shape, INF)
+        rise = ter.heights - z_lo
+        right = np.nonzero((rise > 0) & (ter.starts >= ter.ends[block]))[0]
+        left = np.nonzero((rise > 0) & (ter.ends <= ter.starts[block]))[0]
+        if right.size == 0 and left.size == 0:
+            return lo, hi
+        t_up = safe_sqrt(2.0 * (z - z_lo) / hp.g)
+        zdot = hp.g * t_up
+        shift = ydot * t_up
+        for b in np.concatenate([right, left]):
+            t_h = np.where(ter.heights[b] < z,
+                           (zdot - safe_sqrt(zdot**2 - 2.0 * hp.g * rise[b])) / hp.g, t_up)
+            if b in right:
+                hi = np.minimum(hi, ter.starts[b] + shift - np.maximum(ydot, 0) * t_h)
+            else:
+                lo = np.maximum(lo, ter.ends[b] + shift - np.minimum(ydot, 0) * t_h)
+        return lo, hi
+
+
+# --- goal choice on a grid (eqs 30-31) --------------------------------------------------------
+
+
+def _axis_margin(mask, spacing, axis):
+    """Distance along `axis` to the nearest cell outside `mask` (boundary halfway between)."""
+    n = mask.shape[axis]
+    shape = [1] * mask.ndim
+    shape[axis] = n
+    idx = np.arange(n).reshape(shape)
+    prev_out = np.maximum.accumulate(np.where(mask, -1, idx), axis=axis)
+    rev = np.flip(np.where(mask, n, idx), axis=axis)
+    next_out = np.flip(np.minimum.accumulate(rev, axis=axis), axis=axis)
+    return (np.minimum(idx - prev_out, next_out - idx) - 0.5) * spacing
+
+
+def _line_margin(line, i, spacing):
+    """`_axis_margin` of a 1-D mask at one index."""
+    if not line[i]:
+        return -0.5 * spacing
+    out = np.nonzero(~line)[0]
+    before = out[out < i]
+    after = out[out > i]
+    prev_out = before[-1] if before.size else -1
+    next_out = after[0] if after.size else line.size
+    return (min(i - prev_out, next_out - i) - 0.5) * spacing
+
+
+def pair_goal(sit: Situation, ti, seg_i, tj, seg_j, box, n_v=16, n_z=16, margins=False):
+    """Best goal in `Gf(i) ∩ D(j)` for one candidate pair (mirrors `_policies.pair_goal`).
+
+    Arguments:
+        box: `(2, 2)` overlap of the pair's boxes, rows `(z, ydot)`, columns `(lo, hi)`.
+        margins: return the grid instead, `(margin, vs, zs)` (`-inf` outside the
+            intersection), to check which cells tie for the best margin.
+
+    Returns:
+        `(found, goal, margin, margin_d)`.
+    """
+    hp = sit.hopper
+    reg_i, reg_j = sit.regions[ti], sit.regions[tj]
+    py_i, h_i = sit.segs.centre[seg_i]
+    py_j, h_j = sit.segs.centre[seg_j]
+    b_i, b_j = sit.segs.block[seg_i], sit.segs.block[seg_j]
+    rho0 = hp.rho0
+    (z0, z1), (v0, v1) = box
+    dv, dz = (v1 - v0) / n_v, (z1 - z0) / n_z
+    vs = v0 + (np.arange(n_v) + 0.5) * dv
+    zs = z0 + (np.arange(n_z) + 0.5) * dz
+
+    empty = (False, None, -INF, -INF)
+    gzl, gzh = reg_i.goal_height_bounds(vs)
+    dzl, dzh = reg_j.domain_height_bounds(vs)
+    gzl, gzh = gzl + h_i + rho0, gzh + h_i + rho0
+    dzl, dzh = dzl + h_j + rho0, dzh + h_j + rho0
+    dzl = np.maximum(dzl, h_j + rho0 + 1e-6)  # D(j) needs zr > 0 strictly
+    zl, zh = np.maximum(gzl, dzl)[:, None], np.minimum(gzh, dzh)[:, None]
+    V, Z = vs[:, None], zs[None, :]
+    in_z = (Z >= zl) & (Z <= zh)
+    if not (in_z.any() or margins):
+        return empty
+
+    g_lo, g_hi = reg_i.goal_position_bounds(V, Z - h_i - rho0)
+    g_lo, g_hi = g_lo + py_i, g_hi + py_i
+    shift_j = V * safe_sqrt(2.0 * (Z - h_j - rho0) / hp.g)
+    l = sit.templates.half_length
+    d_lo, d_hi = py_j - shift_j - l, py_j - shift_j + l
+    # Screen (as the JAX path does): the collision clauses only shrink the y extents.
+    if not ((in_z & (np.minimum(g_hi, d_hi) > np.maximum(g_lo, d_lo))).any() or margins):
+        return empty
+    c_lo, c_hi = sit.descent_y_bounds(V, Z, b_j)
+    a_lo, a_hi = sit.ascent_y_bounds(V, Z, b_i)
+    dom_lo, dom_hi = np.maximum(d_lo, c_lo), np.minimum(d_hi, c_hi)
+    y_lo = np.maximum(np.maximum(g_lo, a_lo), dom_lo)
+    y_hi = np.minimum(np.minimum(g_hi, a_hi), dom_hi)
+
+    mask = in_z & (y_hi > y_lo)
+    if not (mask.any() or margins):
+        return empty
+    margin = np.minimum(np.minimum(0.5 * (y_hi - y_lo), np.minimum(Z - zl, zh - Z)),
+                        np.minimum(_axis_margin(mask, dz, 1), _axis_margin(mask, dv, 0)))
+    margin = np.where(mask, np.round(margin, 9), -INF)  # ties: first cell wins (as in JAX)
+    if margins:
+        return margin, vs, zs
+    a, b = np.unravel_index(np.argmax(margin), margin.shape)
+
+    y_g = 0.5 * (y_lo[a, b] + y_hi[a, b])
+    t_j = reg_j.t
+    z_ok = (zs >= dzl[a]) & (zs <= dzh[a])
+    v_ok = (vs >= t_j["v_lo"]) & (vs <= t_j["v_hi"])
+    row = z_ok & (dom_hi[a] > dom_lo[a]) & v_ok[a]
+    col = (zs[b] >= dzl) & (zs[b] <= dzh) & (dom_hi[:, b] > dom_lo[:, b]) & v_ok
+    margin_d = min(min(y_g - dom_lo[a, b], dom_hi[a, b] - y_g),
+                   min(min(zs[b] - dzl[a], dzh[a] - zs[b]),
+                       min(_line_margin(row, b, dz), _line_margin(col, a, dv))))
+    return True, np.array([y_g, zs[b], vs[a]]), float(margin[a, b]), float(margin_d)
+
+
+def goal_policy_margin(sit: Situation, goal, ti, seg_i, n_steps=50):
+    """Whether situated `(ti, seg_i)` reaches the global goal, and the goal's margin to the
+    boundary of its (collision-free) Gf along each axis in 1 cm steps."""
+    reg, hp = sit.regions[ti], sit.hopper
+    py, h = sit.segs.centre[seg_i]
+    block = sit.segs.block[seg_i]
+    steps = 0.01 * np.arange(1, n_steps + 1)
+    signed = np.array([-1.0, 1.0])[None, :, None, None] * steps[None, None, :, None]
+    probes = goal + signed * np.eye(3)[:, None, None, :]  # (axis, sign, step, 3)
+    pts = np.concatenate([np.asarray(goal, float)[None], probes.reshape(-1, 3)])
+    lo, hi = sit.ascent_y_bounds(pts[:, 2], pts[:, 1], block)
+    ok = (reg.feasible_goal_contains(pts[:, 0] - py, pts[:, 1] - h - hp.rho0, pts[:, 2])
+          & (pts[:, 0] > lo) & (pts[:, 0] < hi))
+    if not ok[0]:
+        return False, -INF
+    inside = ok[1:].reshape(3, 2, n_steps)
+    first_out = np.argmin(inside, axis=2)
+    dist = np.where(np.all(inside, axis=2), steps[-1], steps[first_out] - 0.005)
+    return True, float(dist.min())
+
+
+_OFFSETS = np.stack(np.meshgrid(*[np.arange(-1.0, 2.0)] * 3, indexing="ij"), -1).reshape(-1, 3)
+CENTRE_PROBE = 13  # offset (0, 0, 0)
+
+
+def situate_goal(sit: Situation, goal, half_width):
+    """Domain membership of a goal and its safety-sampling score in one pass.
+
+    Returns:
+        `(ids, inside, robustness)`: the candidate situated ids and which contain the goal
+        (a row of the prepares matrix P), and the fraction of the 27 probes
+        `goal + {-1, 0, 1}^3 * half_width` held by some situated domain.
+    """
+    probes = goal + _OFFSETS * half_width
+    ids, inside = sit.candidate_situated(probes)
+    held = inside.any(axis=1)
+    # `n * (1 / 27)`, not `n / 27`: the rounding XLA uses for the JAX path's mean.
+    return ids[CENTRE_PROBE], inside[CENTRE_PROBE], float(held.sum()) * (1.0 / held.size)
+
+
+def world_boxes(sit: Situation, gf_rel, d_rel):
+    """Per situated policy boxes in world coordinates, `(n_situated, 3, 2)` each."""
+    nt, n_sit = sit.templates.n, sit.n_situated
+    t_of, s_of = np.arange(n_sit) % nt, np.arange(n_sit) // nt
+    c = sit.segs.centre
+    offset = np.stack([c[s_of, 0], c[s_of, 1] + sit.hopper.rho0, np.zeros(n_sit)], 1)
+    return gf_rel[t_of] + offset[:, :, None], d_rel[t_of] + offset[:, :, None]
+
+
+def candidate_pairs(gf_world, d_world):
+    """Pairs `(i, j)` whose boxes of Gf(i) and D(j) overlap, one row `i` at a time."""
+    rows, cols = [], []
+    for i in range(gf_world.shape[0]):
+        g = gf_world[i]
+        j = np.nonzero(np.all((g[None, :, 0] <= d_world[:, :, 1])
+                              & (d_world[:, :, 0] <= g[None, :, 1]), axis=1))[0]
+        rows.append(np.full(j.size, i))
+        cols.append(j)
+    return np.concatenate(rows), np.concatenate(cols)
+
+
+def pair_box(gf_world, d_world, i, j):
+    """Overlap of the two boxes in `(z, ydot)`: `(2, 2)`."""
+    return np.stack([np.maximum(gf_world[i, 1:, 0], d_world[j, 1:, 0]),
+                     np.minimum(gf_world[i, 1:, 1], d_world[j, 1:, 1])], axis=1)
