@@ -146,7 +146,7 @@ def run_one(apex0, key, tables: PlanTables, true_terrain: Terrain, hopper: Hoppe
         ok = stepping & (s_code == OK)
         apexes = apexes.at[k + 1].set(jnp.where(ok, nxt, jnp.nan))
         feet = feet.at[k].set(jnp.where(stepping, foot, jnp.nan))
-        used = used.at[k].set(jnp.where(stepping, a, -1))
+        used = used.at[k].set(jnp.where(stepping, a, -1).astype(jnp.int32))
         apex = jnp.where(ok, nxt, apex)
         return apex, code, steps + stepping.astype(jnp.int32), k + 1, (apexes, feet, used)
 
