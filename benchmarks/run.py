@@ -157,7 +157,7 @@ def bench_bhop_sweep(jp, quick: bool):
                  and np.array_equal(ref["steps"], out["steps"]))
     strides = int(ref["steps"].sum())
     note = (f"{initial.shape[0]} initial conditions, {strides} strides in the twin "
-            f"(it stops each run at its end; JAX scans all 60 steps of every run); "
+            f"(each side stops every run at its end); "
             f"success {float(np.mean(out['code'] == 0)):.3f}; per-run outcomes and step "
             f"counts identical: {agree}")
     return entry("bhop_sweep", f"reference, {initial.shape[0]} ICs", warm, numpy_s,
