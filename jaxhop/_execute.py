@@ -182,11 +182,13 @@ def run_batch(plan: Plan, apex0, *, key=None, true_terrain: Terrain | None = Non
               checkpoint: str | None = None, model: str = "bhop"):
     """Run many initial apexes through the reactive controller.
 
-    The batch is cut into chunks, by default one per visible device (rounded up to a power
-    of two, at most 8192, so that batches of other sizes reuse the compilation); the last
-    chunk is padded. Chunks are dispatched to the devices round-robin, asynchronously, and
-    gathered in order. Run `i` draws its noise from `fold_in(key, i)`, so results do not
-    depend on the chunking or on the number of devices.
+    The batch is cut into chunks of `CHUNK` runs (smaller batches: the next power of two), the
+    last one padded: one compilation serves every sweep. Small chunks also end early: a
+    vmapped while loop runs until the longest run of its chunk ends. Chunks are dispatched to
+    the visible devices round-robin, asynchronously, and gathered in order. Run `i` draws its
+    noise from `fold_in(key, i)`, so outcomes, strides and policies do not depend on the
+    chunking or the number of devices. Apex values can differ in the last bits (about
+    1e-14), because XLA may vectorise another batch shape differently.
 
     With `checkpoint` (a directory), each finished chunk is written there atomically under a
     fingerprint of everything the results depend on; a rerun with the same inputs loads the
@@ -209,8 +211,7 @@ def run_batch(plan: Plan, apex0, *, key=None, true_terrain: Terrain | None = Non
                        else jnp.asarray(tolerance, float), max_steps=max_steps, model=model)
     devices = jax.devices()
     if chunk is None:
-        per_device = -(-max(n, 1) // len(devices))
-        chunk = min(1 << (per_device - 1).bit_length(), 8192)
+        chunk = CHUNK if n >= CHUNK else 1 << (max(n, 1) - 1).bit_length()
     store = None
     if checkpoint is not None:
         store = _ChunkStore(checkpoint, _fingerprint(plan, apex0, key, true_terrain,
@@ -242,6 +243,7 @@ def run_batch(plan: Plan, apex0, *, key=None, true_terrain: Terrain | None = Non
 
 
 RUN_FIELDS = ("code", "steps", "apexes", "footholds", "policies")
+CHUNK = 256
 
 
 def _fingerprint(plan: Plan, apex0, key, true_terrain, disturbance, config, chunk) -> str:
