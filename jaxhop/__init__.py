@@ -45,3 +45,15 @@ from ._terrain import make_terrain as make_terrain
 from ._terrain import random_terrain as random_terrain
 from ._terrain import save_terrain as save_terrain
 from ._terrain import segments as segments
+
+_LAZY = {"slip_stride": "._slip", "slip_apex_map": "._slip",
+         "deadbeat_slip": "._slip_deadbeat"}
+
+
+def __getattr__(name):
+    # The SLIP model pulls in diffrax; import it only when it is used.
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(_LAZY[name], __name__), name)
+    raise AttributeError(f"module 'jaxhop' has no attribute {name!r}")

@@ -51,7 +51,7 @@ def _seed(text: str) -> int:
     return v
 
 
-def _common(p, model=True, noise=False):
+def _common(p, model=True, noise=False, models=("bhop",)):
     p.add_argument("--terrain", default="reference", help="built-in name or JSON file")
     p.add_argument("--goal", default=None, help="global goal y,z,ydot (default: the terrain's)")
     p.add_argument("--json", default=None, metavar="PATH", help="write the result as JSON")
@@ -59,7 +59,8 @@ def _common(p, model=True, noise=False):
     p.add_argument("--pickbest", default="robust", choices=("robust", "depth", "safety"),
                    help="deployment priority")
     if model:
-        p.add_argument("--model", default="bhop", choices=("bhop",))
+        p.add_argument("--model", default="bhop", choices=models,
+                       help="slip runs the SLIP model on the BHop plan (run only, so far)")
     if noise:
         p.add_argument("--noise", default="none", choices=("none", "wind", "sensor", "ground"))
         p.add_argument("--seed", default="0", help="seed of every random draw")
@@ -86,10 +87,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--chunk", default=None, help="runs per chunk (default: one per device)")
     p.set_defaults(func=cmd_sweep)
     p = sub.add_parser("run", help="one run from one initial apex")
-    _common(p, noise=True)
+    _common(p, noise=True, models=("bhop", "slip"))
     p.add_argument("--apex", default="0.6,1.6,0.5", help="initial apex y,z,ydot")
     p.add_argument("--plot", default=None, metavar="PATH", help="write the run as PNG")
     p.set_defaults(func=cmd_run)
+    p = sub.add_parser("step", help="one stride of a model from one apex with given controls")
+    p.add_argument("--model", default="slip", choices=("slip", "bhop"))
+    p.add_argument("--apex", required=True, help="apex y,z,ydot")
+    p.add_argument("--controls", required=True,
+                   help="slip: th_td,kc,kd (rad, N/m, N/m); bhop: dy,th,k")
+    p.add_argument("--terrain", default=None,
+                   help="built-in name or JSON file (default: flat ground at height 0)")
+    p.add_argument("--wind", default="0", help="horizontal acceleration in flight (m/s^2)")
+    p.add_argument("--json", default=None, metavar="PATH")
+    p.set_defaults(func=cmd_step)
     p = sub.add_parser("demo", help="the main job: plan, runs, sweeps, figures")
     p.add_argument("--out", default="jaxhop-demo", help="output folder")
     p.add_argument("--json", default=None, metavar="PATH")
@@ -277,7 +288,8 @@ def cmd_run(args) -> int:
     apex = _floats(args.apex, 3, "--apex")
     terrain, plan, seed, max_steps, tol, disturbance, key = _prepare(args)
     r = run_batch(plan, np.asarray([apex]), key=key, true_terrain=terrain,
-                  disturbance=disturbance, max_steps=max_steps, tolerance=np.asarray(tol))
+                  disturbance=disturbance, max_steps=max_steps, tolerance=np.asarray(tol),
+                  model=args.model)
     steps = int(r["steps"][0])
     out = {"terrain": terrain.name, "model": args.model, "noise": args.noise, "seed": seed,
            "result": RESULT_NAMES[int(r["code"][0])], "steps": steps,
@@ -305,6 +317,44 @@ def _save(fig, path):
         raise InputError(f"cannot write figure {path} ({err.strerror})") from None
     finally:
         plt.close(fig)
+
+
+def cmd_step(args) -> int:
+    import jax.numpy as jnp
+    import numpy as np
+
+    from ._flight import RESULT_NAMES
+    from ._params import Hopper
+    from ._terrain import load_terrain, make_terrain
+
+    apex = _floats(args.apex, 3, "--apex")
+    u = _floats(args.controls, 3, "--controls")
+    (wind,) = _floats(args.wind, 1, "--wind")
+    if args.model == "slip":
+        if not abs(u[0]) < math.pi / 2:
+            raise InputError(f"--controls: th_td must lie in (-pi/2, pi/2), got {u[0]}")
+        if u[1] <= 0 or u[2] <= 0:
+            raise InputError("--controls: stiffnesses kc and kd must be positive")
+    elif u[2] <= -1:
+        raise InputError(f"--controls: k must be > -1, got {u[2]}")
+    if args.terrain is None:
+        terrain = make_terrain([(apex[0] - 20.0, apex[0] + 20.0, 0.0)], name="flat-ground")
+    else:
+        terrain = load_terrain(args.terrain)
+    hopper = Hopper()
+    if args.model == "slip":
+        from ._slip import slip_stride as stride_fn
+    else:
+        from ._execute import bhop_stride as stride_fn
+    nxt, code, foot = stride_fn(jnp.asarray(apex), jnp.asarray(u), terrain, hopper, wind)
+    result = "ok" if int(code) == 0 else RESULT_NAMES[int(code)]
+    out = {"model": args.model, "apex": apex, "controls": u, "terrain": terrain.name,
+           "apex_next": np.asarray(nxt).tolist(), "result": result,
+           "foothold": np.asarray(foot).tolist()}
+    print(f"{args.model} stride from {apex} with {u}: {result}; next apex "
+          f"{np.round(np.asarray(nxt), 6).tolist()}")
+    _write_json(args.json, out)
+    return 0
 
 
 def cmd_demo(args) -> int:

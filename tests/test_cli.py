@@ -53,3 +53,31 @@ def test_plan_and_run_json(tmp_path, monkeypatch, capsys):
     r = json.loads(run.read_text())
     assert r["result"] == "success" and len(r["footholds"]) == r["steps"]
     assert (tmp_path / "r.png").stat().st_size > 10_000
+
+
+def test_step_bhop_matches_closed_form(tmp_path):
+    import jax.numpy as jnp
+    import numpy as np
+
+    from jaxhop._bhop import bhop_apex_map
+    from jaxhop._params import Hopper
+
+    out = tmp_path / "s.json"
+    assert main(["step", "--model", "bhop", "--apex", "0.2,1.4,0.8", "--controls",
+                 "0.1,0.05,1.2", "--json", str(out)]) == 0
+    data = json.loads(out.read_text())
+    expect = bhop_apex_map(jnp.array([0.2, 1.4, 0.8]), jnp.array([0.1, 0.05, 1.2]), 0.0,
+                           Hopper())
+    assert data["result"] == "ok"
+    np.testing.assert_allclose(data["apex_next"], np.asarray(expect), atol=1e-12)
+
+
+def test_step_slip_equal_stiffness_conserves_energy(tmp_path):
+    out = tmp_path / "s.json"
+    assert main(["step", "--model", "slip", "--apex", "0,1.3,1.0", "--controls",
+                 "0.15,20000,20000", "--json", str(out)]) == 0
+    data = json.loads(out.read_text())
+    (y0, z0, v0), (y1, z1, v1) = data["apex"], data["apex_next"]
+    e0, e1 = 0.5 * v0**2 + 9.81 * z0, 0.5 * v1**2 + 9.81 * z1
+    assert data["result"] == "ok" and y1 > y0
+    assert abs(e1 - e0) / e0 < 1e-8
