@@ -7,7 +7,6 @@ import json
 import math
 import os
 import sys
-import time
 
 from ._errors import InputError
 
@@ -231,24 +230,6 @@ def cmd_plan(args) -> int:
     return 0
 
 
-def _sweep_result(args, terrain, plan, max_steps, tol, disturbance, key, dy, dz, ydot0):
-    import numpy as np
-
-    from ._execute import in_global_domain, run_batch, summarize, sweep_grid
-
-    t0 = time.perf_counter()
-    grid = sweep_grid(terrain, ydot0, dy, dz)
-    if grid.shape[0] > 2_000_000:
-        raise InputError("--dy/--dz: the grid would exceed 2 000 000 initial states")
-    initial = grid[in_global_domain(grid, plan.tables(), plan.hopper)]
-    if initial.shape[0] == 0:
-        raise InputError("no grid state lies in the global domain (is the goal reachable?)")
-    result = run_batch(plan, initial, key=key, true_terrain=terrain, disturbance=disturbance,
-                       max_steps=max_steps, progress=True, tolerance=np.asarray(tol),
-                       chunk=args.chunk_size, checkpoint=args.checkpoint)
-    return summarize(result, time.perf_counter() - t0), initial, result
-
-
 def cmd_sweep(args) -> int:
     dy, dz = _positive(args.dy, "--dy"), _positive(args.dz, "--dz")
     args.chunk_size = int(_positive(args.chunk, "--chunk")) if args.chunk is not None else None
@@ -260,8 +241,12 @@ def cmd_sweep(args) -> int:
                              f"({err.strerror})") from None
     (ydot0,) = _floats(args.ydot0, 1, "--ydot0")
     terrain, plan, seed, max_steps, tol, disturbance, key = _prepare(args)
-    out, initial, result = _sweep_result(args, terrain, plan, max_steps, tol, disturbance, key,
-                                         dy, dz, ydot0)
+    from ._execute import sweep
+
+    out, initial, result = sweep(plan, key=key, true_terrain=terrain, disturbance=disturbance,
+                                 ydot0=ydot0, dy=dy, dz=dz, max_steps=max_steps,
+                                 tolerance=tol, chunk=args.chunk_size,
+                                 checkpoint=args.checkpoint, progress=True)
     out.update({"terrain": terrain.name, "model": args.model, "noise": args.noise,
                 "seed": seed})
     fails = ", ".join(f"{k} {v}" for k, v in out["failures"].items() if v) or "none"

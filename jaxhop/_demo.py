@@ -9,7 +9,7 @@ import time
 import jax
 import numpy as np
 
-from ._execute import in_global_domain, run_batch, summarize, sweep_grid
+from ._execute import in_global_domain, run_batch, sweep, sweep_grid
 from ._flight import RESULT_NAMES
 from ._params import disturbance_for
 from ._plan import get_plan
@@ -81,10 +81,8 @@ def demo(out: str = "jaxhop-demo", cache: bool = True, log=print) -> dict:
 
     sweeps = {}
     for noise in ("none", "wind"):
-        ts = time.perf_counter()
-        res = run_batch(plan, initial, key=jax.random.key(0), disturbance=disturbance_for(noise),
-                        progress=True)
-        sweeps[noise] = summarize(res, time.perf_counter() - ts)
+        sweeps[noise], _, res = sweep(plan, initial=initial, key=jax.random.key(0),
+                                      disturbance=disturbance_for(noise), progress=True)
         save(doa_figure(terrain, initial, res["code"], res["steps"], plan.goal,
                         f"BHop, noise {noise}"), f"doa_{noise}.png")
 

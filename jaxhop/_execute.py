@@ -16,6 +16,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from ._bhop import ascent, deadbeat_bhop, stance
+from ._errors import InputError
 from ._flight import (
     COLLISION,
     FAILURE_NAMES,
@@ -170,10 +171,16 @@ def _batch(apex0, keys, tables, true_terrain, hopper, disturbance, config):
 _batch_jit = jax.jit(_batch)
 
 
+def _in_domain(apexes, tables: PlanTables, hopper: Hopper):
+    return jax.vmap(lambda z: first_match(z, tables, hopper)[0])(apexes)
+
+
+_in_domain_jit = jax.jit(_in_domain)
+
+
 def in_global_domain(apexes, tables: PlanTables, hopper: Hopper) -> np.ndarray:
     """Which apexes lie in the union of the deployed policies' domains."""
-    found = jax.jit(jax.vmap(lambda z: first_match(z, tables, hopper)[0]))(jnp.asarray(apexes))
-    return np.asarray(found)
+    return np.asarray(_in_domain_jit(jnp.asarray(apexes, float), tables, hopper))
 
 
 def run_batch(plan: Plan, apex0, *, key=None, true_terrain: Terrain | None = None,
@@ -328,18 +335,33 @@ def summarize(result: dict, seconds: float) -> dict:
     }
 
 
+MAX_GRID = 2_000_000
+
+
 def sweep(plan: Plan, *, initial=None, key=None, true_terrain: Terrain | None = None,
           disturbance: Disturbance | None = None, ydot0: float = 0.5, dy: float = 0.05,
-          dz: float = 0.05, max_steps: int = 60, progress: bool = False):
+          dz: float = 0.05, max_steps: int = 60, tolerance=None, chunk: int | None = None,
+          checkpoint: str | None = None, model: str = "bhop", progress: bool = False):
     """Domain-of-attraction sweep: run every grid state inside the global domain.
+
+    The grid (`sweep_grid`) covers `true_terrain` (default: the plan's map); `initial`
+    replaces it. The other arguments are `run_batch`'s.
 
     Returns:
         `(summary, initial_states, result)`.
+
+    Raises:
+        InputError: the grid would exceed `MAX_GRID` states, or no state to run.
     """
     t0 = time.perf_counter()
     if initial is None:
-        grid = sweep_grid(plan.terrain, ydot0, dy, dz)
+        grid = sweep_grid(plan.terrain if true_terrain is None else true_terrain, ydot0, dy, dz)
+        if grid.shape[0] > MAX_GRID:
+            raise InputError(f"dy/dz: the grid would exceed {MAX_GRID} initial states")
         initial = grid[in_global_domain(grid, plan.tables(), plan.hopper)]
+        if initial.shape[0] == 0:
+            raise InputError("no grid state lies in the global domain (is the goal reachable?)")
     result = run_batch(plan, initial, key=key, true_terrain=true_terrain,
-                       disturbance=disturbance, max_steps=max_steps, progress=progress)
+                       disturbance=disturbance, max_steps=max_steps, tolerance=tolerance,
+                       chunk=chunk, progress=progress, checkpoint=checkpoint, model=model)
     return summarize(result, time.perf_counter() - t0), initial, result

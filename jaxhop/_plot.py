@@ -114,10 +114,6 @@ def doa_figure(terrain: Terrain, initial: np.ndarray, code: np.ndarray, steps: n
     return fig
 
 
-def plan_for_figure(plan: Plan) -> dict:
-    return {"terrain": plan.terrain, "goal": plan.goal}
-
-
 def template_regions_figure(templates, hopper, n: int = 121):
     """Domain and feasible-goal regions of every template in `(ydot, zr)` (Fig. 9).
 
