@@ -67,16 +67,20 @@ class Situation:
         on_seg &= (np.arange(3) == 0) | (local != np.roll(local, 1, axis=1))
         ids = (segs[:, :, None] * nt + np.arange(nt)).reshape(apexes.shape[0], -1)
         # Template test (eqs 38-41) relative to each of the three segments.
-        y_rel = (apexes[:, 0:1] - py)[:, :, None]
-        zr = (apexes[:, 1:2] - h - hp.rho0)[:, :, None]
-        ydot = apexes[:, 2, None, None]
-        c = self.tcols
+        inside = self._template_inside((apexes[:, 0:1] - py)[:, :, None],
+                                       (apexes[:, 1:2] - h - hp.rho0)[:, :, None],
+                                       apexes[:, 2, None, None])
+        return ids, (inside & on_seg[:, :, None]).reshape(apexes.shape[0], -1)
+
+    def _template_inside(self, y_rel, zr, ydot):
+        """Template domain test (eqs 38-41) in coordinates relative to a segment; broadcasts
+        against the template columns."""
+        hp, c = self.hopper, self.tcols
         energy = 0.5 * hp.m * ydot**2 + hp.m * hp.g * zr
         y_td = y_rel + ydot * safe_sqrt(2.0 * zr / hp.g)
         l = self.templates.half_length
-        inside = ((ydot >= c["v_lo"]) & (ydot <= c["v_hi"]) & (zr > 0) & (energy >= c["e_lo"])
-                  & (energy <= c["e_hi"]) & (y_td >= -l) & (y_td <= l))
-        return ids, (inside & on_seg[:, :, None]).reshape(apexes.shape[0], -1)
+        return ((ydot >= c["v_lo"]) & (ydot <= c["v_hi"]) & (zr > 0) & (energy >= c["e_lo"])
+                & (energy <= c["e_hi"]) & (y_td >= -l) & (y_td <= l))
 
     def candidate_situated_one(self, apex):
         """`candidate_situated` for one apex: `(ids, inside)`, each `(3 * n_templates,)`."""
@@ -94,15 +98,8 @@ class Situation:
         if not on_seg.any():
             return ids, np.zeros(ids.size, bool)
         py, h = self.segs.centre[segs, 0], self.segs.centre[segs, 1]
-        y_rel = (apex[0] - py)[:, None]
-        zr = (apex[1] - h - hp.rho0)[:, None]
-        ydot = float(apex[2])
-        c = self.tcols
-        energy = 0.5 * hp.m * ydot**2 + hp.m * hp.g * zr
-        y_td = y_rel + ydot * safe_sqrt(2.0 * zr / hp.g)
-        l = self.templates.half_length
-        inside = ((ydot >= c["v_lo"]) & (ydot <= c["v_hi"]) & (zr > 0) & (energy >= c["e_lo"])
-                  & (energy <= c["e_hi"]) & (y_td >= -l) & (y_td <= l))
+        inside = self._template_inside((apex[0] - py)[:, None], (apex[1] - h - hp.rho0)[:, None],
+                                       float(apex[2]))
         return ids, (inside & on_seg[:, None]).reshape(-1)
 
     # --- collision-free y bounds ---
