@@ -15,6 +15,15 @@ import numpy as np
 from ._errors import InputError
 
 SEGMENT_LENGTH = 0.15
+# Limits on user terrains: beyond them a plan is out of reach anyway (the reference map has
+# 8 blocks and 60 segments), and an absurd file is an error, not an hour of planning.
+MAX_BLOCKS = 1_000
+MAX_SEGMENTS = 2_000
+MAX_COORDINATE = 1.0e4  # |start|, |end|, |height| (m)
+MAX_FILE_BYTES = 16 * 2**20
+MAX_NAME = 200
+MAX_GOAL_HEIGHT = 100.0  # goal apex at most this far above the ground (m)
+MAX_SPEED = 100.0  # |ydot| of a goal or apex (m/s)
 
 _BUILTIN = {
     "reference": (
@@ -111,12 +120,15 @@ def make_terrain(
     """
     if len(blocks) == 0:
         raise InputError("blocks: the list is empty; a terrain needs at least one block")
+    if len(blocks) > MAX_BLOCKS:
+        raise InputError(f"blocks: {len(blocks)} blocks, at most {MAX_BLOCKS} allowed")
     rows = []
     for i, block in enumerate(blocks):
-        if len(block) != 3:
-            raise InputError(f"blocks[{i}]: expected (start, end, height), got {block!r}")
-        s, e, h = (_number(v, f"blocks[{i}].{k}") for v, k in zip(block, ("start", "end",
-                                                                          "height")))
+        if not isinstance(block, (list, tuple, np.ndarray)) or len(block) != 3:
+            raise InputError(f"blocks[{i}]: expected (start, end, height), got "
+                             f"{_short(block)}")
+        s, e, h = (_number(v, f"blocks[{i}].{k}", MAX_COORDINATE)
+                   for v, k in zip(block, ("start", "end", "height")))
         if not s < e:
             raise InputError(f"blocks[{i}]: start {s} must be less than end {e}")
         if rows and s < rows[-1][1] - 1e-12:
@@ -128,21 +140,68 @@ def make_terrain(
         rows.append((s, e, h))
     if not any(e - s >= seg_length - 1e-9 for s, e, _ in rows):
         raise InputError(f"blocks: no block is at least one segment ({seg_length} m) long")
-    if goal is not None:
-        if len(goal) != 3:
-            raise InputError(f"goal: expected [y, z, ydot], got {goal!r}")
-        goal = tuple(_number(v, f"goal[{k}]") for k, v in enumerate(goal))
+    n_seg = sum(math.floor((e - s) / seg_length + 1e-9) for s, e, _ in rows)
+    if n_seg > MAX_SEGMENTS:
+        raise InputError(f"blocks: {n_seg} segments of {seg_length} m, at most "
+                         f"{MAX_SEGMENTS} allowed")
     arr = np.asarray(rows, dtype=float)
-    return Terrain(jnp.asarray(arr[:, 0]), jnp.asarray(arr[:, 1]), jnp.asarray(arr[:, 2]),
-                   name=str(name), goal=goal)
+    terrain = Terrain(jnp.asarray(arr[:, 0]), jnp.asarray(arr[:, 1]), jnp.asarray(arr[:, 2]),
+                      name=str(name), goal=None)
+    if goal is not None:
+        goal = check_goal(terrain, goal, "goal")
+        terrain = Terrain(terrain.starts, terrain.ends, terrain.heights, terrain.name, goal)
+    return terrain
 
 
-def _number(value, field: str) -> float:
+def check_goal(terrain: Terrain, goal, field: str = "goal") -> tuple[float, float, float]:
+    """Validate a global goal `(y, z, ydot)` on a terrain; returns it as floats.
+
+    The goal apex must be finite, over the map (`start of the first block <= y <= end of the
+    last`), higher than one leg length (1 m) above the block under it (over a hole: above
+    the higher rim), at most `MAX_GOAL_HEIGHT` above it, and `|ydot| <= MAX_SPEED`.
+
+    Raises:
+        InputError: naming `field` and the rule the goal breaks.
+    """
+    if isinstance(goal, (str, bytes, dict)) or not hasattr(goal, "__len__") or len(goal) != 3:
+        raise InputError(f"{field}: expected [y, z, ydot], got {_short(goal)}")
+    y, z, ydot = (_number(v, f"{field}[{k}]", MAX_COORDINATE) for k, v in enumerate(goal))
+    y0, y1 = terrain.y_range
+    if not y0 <= y <= y1:
+        raise InputError(f"{field}: y = {y:g} lies off the map [{y0:g}, {y1:g}]")
+    blocks = terrain.blocks()
+    under = [h for s, e, h in blocks if s <= y <= e]
+    if not under:  # over a hole: the higher of its two rims
+        under = [max((e, h) for _, e, h in blocks if e < y)[1],
+                 min((s, h) for s, _, h in blocks if s > y)[1]]
+    ground = max(under)
+    if not z > ground + 1.0:
+        raise InputError(f"{field}: z = {z:g} must exceed the ground under it ({ground:g}) by "
+                         "more than the leg length 1 m")
+    if z > ground + MAX_GOAL_HEIGHT:
+        raise InputError(f"{field}: z = {z:g} is more than {MAX_GOAL_HEIGHT:g} m above the "
+                         "ground")
+    if abs(ydot) > MAX_SPEED:
+        raise InputError(f"{field}: |ydot| = {abs(ydot):g} exceeds {MAX_SPEED:g} m/s")
+    return (y, z, ydot)
+
+
+def _short(value, n: int = 40) -> str:
+    text = repr(value)
+    return text if len(text) <= n else text[: n - 3] + "..."
+
+
+def _number(value, field: str, limit: float | None = None) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
-        raise InputError(f"{field}: expected a number, got {value!r}")
-    value = float(value)
+        raise InputError(f"{field}: expected a number, got {_short(value)}")
+    try:
+        value = float(value)
+    except OverflowError:
+        raise InputError(f"{field}: number too large, got {_short(value)}") from None
     if not math.isfinite(value):
         raise InputError(f"{field}: must be finite, got {value}")
+    if limit is not None and abs(value) > limit:
+        raise InputError(f"{field}: |{value:g}| exceeds the limit {limit:g}")
     return value
 
 
@@ -165,7 +224,8 @@ def terrain_from_dict(data, source: str = "terrain") -> Terrain:
                          f"{type(data).__name__}")
     unknown = set(data) - {"name", "blocks", "goal"}
     if unknown:
-        raise InputError(f"{source}: unknown key(s) {', '.join(sorted(map(str, unknown)))}")
+        raise InputError(f"{source}: unknown key(s) "
+                         f"{_short(', '.join(sorted(map(str, unknown))))}")
     if "blocks" not in data:
         raise InputError(f"{source}: missing key 'blocks'")
     blocks = data["blocks"]
@@ -180,14 +240,17 @@ def terrain_from_dict(data, source: str = "terrain") -> Terrain:
             raise InputError(f"blocks[{i}]: missing key(s) {', '.join(missing)}")
         extra = set(b) - {"start", "end", "height"}
         if extra:
-            raise InputError(f"blocks[{i}]: unknown key(s) {', '.join(sorted(map(str, extra)))}")
+            raise InputError(f"blocks[{i}]: unknown key(s) "
+                             f"{_short(', '.join(sorted(map(str, extra))))}")
         triples.append((b["start"], b["end"], b["height"]))
     name = data.get("name", os.path.splitext(os.path.basename(source))[0])
     if not isinstance(name, str):
-        raise InputError(f"name: expected a string, got {name!r}")
+        raise InputError(f"name: expected a string, got {_short(name)}")
+    if len(name) > MAX_NAME or not name.isprintable():
+        raise InputError(f"name: expected at most {MAX_NAME} printable characters")
     goal = data.get("goal")
     if goal is not None and not isinstance(goal, list):
-        raise InputError(f"goal: expected [y, z, ydot], got {goal!r}")
+        raise InputError(f"goal: expected [y, z, ydot], got {_short(goal)}")
     return make_terrain(triples, goal, name)
 
 
@@ -199,17 +262,23 @@ def load_terrain(name_or_path: str) -> Terrain:
     """
     if name_or_path in _BUILTIN:
         return builtin_terrain(name_or_path)
-    if not os.path.exists(name_or_path):
-        raise InputError(f"terrain {name_or_path!r} is neither a built-in "
+    if not isinstance(name_or_path, str) or not os.path.exists(name_or_path):
+        raise InputError(f"terrain {_short(name_or_path, 80)} is neither a built-in "
                          f"({', '.join(_BUILTIN)}) nor an existing file")
+    where = f"terrain file {_short(name_or_path, 80)}"
     try:
-        with open(name_or_path) as f:
+        if os.path.getsize(name_or_path) > MAX_FILE_BYTES:
+            raise InputError(f"{where}: larger than {MAX_FILE_BYTES >> 20} MiB")
+        with open(name_or_path, encoding="utf-8") as f:
             data = json.load(f)
-    except (OSError, UnicodeDecodeError) as err:
-        raise InputError(f"{name_or_path}: cannot read ({err})") from None
+    except OSError as err:
+        raise InputError(f"{where}: cannot read ({err.strerror})") from None
+    except UnicodeDecodeError:
+        raise InputError(f"{where}: cannot read (not UTF-8 text)") from None
     except json.JSONDecodeError as err:
-        raise InputError(f"{name_or_path}: invalid JSON ({err.msg} at line {err.lineno})") \
-            from None
+        raise InputError(f"{where}: invalid JSON ({err.msg} at line {err.lineno})") from None
+    except RecursionError:
+        raise InputError(f"{where}: invalid JSON (nested too deeply)") from None
     return terrain_from_dict(data, name_or_path)
 
 

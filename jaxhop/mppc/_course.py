@@ -12,6 +12,14 @@ from .._errors import InputError
 
 _DATA = "data/courses"
 _TOP_KEYS = {"name", "start", "goal", "obstacles", "restricted", "margins", "snapshots"}
+# Limits on user courses (the shipped ones: 7.2-14.4 m, at most 7 blocks, 11 snapshots).
+MAX_COORDINATE = 1.0e3  # |position|, width, |start|, |goal| (m)
+MAX_SPAN = 1.0e3  # goal - start (m)
+MAX_HEIGHT = 10.0  # obstacle height (m)
+MAX_MARGIN = 1.0  # margins (m)
+MAX_ITEMS = 1_000  # obstacles, restricted areas, snapshots
+MAX_FILE_BYTES = 16 * 2**20
+MAX_NAME = 200
 
 
 @dataclass(frozen=True, eq=False)
@@ -87,22 +95,35 @@ class Course:
         return out
 
 
-def _number(value, field: str, positive: bool = False, nonneg: bool = False) -> float:
+def _short(value, n: int = 40) -> str:
+    text = repr(value)
+    return text if len(text) <= n else text[: n - 3] + "..."
+
+
+def _number(value, field: str, positive: bool = False, nonneg: bool = False,
+            limit: float = MAX_COORDINATE) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise InputError(f"{field}: expected a number, got {value!r}")
-    value = float(value)
+        raise InputError(f"{field}: expected a number, got {_short(value)}")
+    try:
+        value = float(value)
+    except OverflowError:
+        raise InputError(f"{field}: number too large, got {_short(value)}") from None
     if not math.isfinite(value):
         raise InputError(f"{field}: must be finite, got {value!r}")
     if positive and value <= 0:
         raise InputError(f"{field}: must be > 0, got {value!r}")
     if nonneg and value < 0:
         raise InputError(f"{field}: must be >= 0, got {value!r}")
+    if abs(value) > limit:
+        raise InputError(f"{field}: |{value:g}| exceeds the limit {limit:g}")
     return value
 
 
 def _items(value, field: str) -> list:
     if not isinstance(value, list):
         raise InputError(f"{field}: expected a list, got {type(value).__name__}")
+    if len(value) > MAX_ITEMS:
+        raise InputError(f"{field}: {len(value)} entries, at most {MAX_ITEMS} allowed")
     for i, item in enumerate(value):
         if not isinstance(item, dict):
             raise InputError(f"{field}[{i}]: expected an object")
@@ -112,7 +133,7 @@ def _items(value, field: str) -> list:
 def _keys(item: dict, allowed: set, required: set, field: str):
     extra = set(item) - allowed
     if extra:
-        raise InputError(f"{field}: unknown key {sorted(extra)[0]!r}")
+        raise InputError(f"{field}: unknown key {_short(sorted(extra)[0])}")
     missing = required - set(item)
     if missing:
         raise InputError(f"{field}: missing key {sorted(missing)[0]!r}")
@@ -125,7 +146,7 @@ def _environment(obstacles, restricted, field: str) -> Environment:
         _keys(o, {"position", "width", "height"}, {"position", "width", "height"}, f)
         p = _number(o["position"], f + ".position")
         w = _number(o["width"], f + ".width", positive=True)
-        h = _number(o["height"], f + ".height", positive=True)
+        h = _number(o["height"], f + ".height", positive=True, limit=MAX_HEIGHT)
         boxes.append((p - w / 2, p + w / 2, h))
     boxes.sort()
     for (a0, b0, _), (a1, _, _) in zip(boxes, boxes[1:]):
@@ -169,16 +190,20 @@ def course_from_dict(data, default_name: str = "course") -> Course:
     name = data.get("name", default_name)
     if not isinstance(name, str) or not name:
         raise InputError("name: expected a non-empty string")
+    if len(name) > MAX_NAME or not name.isprintable():
+        raise InputError(f"name: expected at most {MAX_NAME} printable characters")
     start = _number(data["start"], "start")
     goal = _number(data["goal"], "goal")
     if goal <= start:
         raise InputError(f"goal: must be greater than start ({start:g}), got {goal:g}")
+    if goal - start > MAX_SPAN:
+        raise InputError(f"goal: at most {MAX_SPAN:g} m after start, got {goal - start:g}")
     margins = data.get("margins", {"horizontal": 0.03, "vertical": 0.05})
     if not isinstance(margins, dict):
         raise InputError("margins: expected an object")
     _keys(margins, {"horizontal", "vertical"}, {"horizontal", "vertical"}, "margins")
-    mh = _number(margins["horizontal"], "margins.horizontal", nonneg=True)
-    mv = _number(margins["vertical"], "margins.vertical", nonneg=True)
+    mh = _number(margins["horizontal"], "margins.horizontal", nonneg=True, limit=MAX_MARGIN)
+    mv = _number(margins["vertical"], "margins.vertical", nonneg=True, limit=MAX_MARGIN)
     env = _environment(data["obstacles"], data.get("restricted", []), "")
     snapshots = []
     last = -1
@@ -186,8 +211,9 @@ def course_from_dict(data, default_name: str = "course") -> Course:
         f = f"snapshots[{i}]"
         _keys(s, {"from_jump", "obstacles", "restricted"}, {"from_jump", "obstacles"}, f)
         k = s["from_jump"]
-        if isinstance(k, bool) or not isinstance(k, int) or k < 0:
-            raise InputError(f"{f}.from_jump: expected an integer >= 0, got {k!r}")
+        if isinstance(k, bool) or not isinstance(k, int) or not 0 <= k <= 10**6:
+            raise InputError(f"{f}.from_jump: expected an integer in [0, 1e6], got "
+                             f"{_short(k)}")
         if k <= last:
             raise InputError(f"{f}.from_jump: must increase from one snapshot to the next")
         last = k
@@ -195,6 +221,8 @@ def course_from_dict(data, default_name: str = "course") -> Course:
     for k, e in [(0, env)] + snapshots:
         where = "" if k == 0 and e is env else f" (snapshot from jump {k})"
         _legal_endpoint(e, goal, mh, "goal" + where)
+    _legal_endpoint(env if not snapshots or snapshots[0][0] > 0 else snapshots[0][1], start,
+                    mh, "start")
     return Course(name, start, goal, mh, mv, env, tuple(snapshots))
 
 
@@ -230,14 +258,20 @@ def load_course(name_or_path: str) -> Course:
                 "nor a file"
             )
         try:
-            text = path.read_text()
+            if path.stat().st_size > MAX_FILE_BYTES:
+                raise InputError(f"course: {name!r} is larger than {MAX_FILE_BYTES >> 20} MiB")
+            text = path.read_text(encoding="utf-8")
         except OSError as e:
             raise InputError(f"course: cannot read {name!r}: {e.strerror}") from None
+        except UnicodeDecodeError:
+            raise InputError(f"course: cannot read {name!r}: not UTF-8 text") from None
         default = path.stem
     try:
         data = json.loads(text)
     except json.JSONDecodeError as e:
         raise InputError(f"course: {name!r} is not valid JSON ({e.msg}, line {e.lineno})") from None
+    except RecursionError:
+        raise InputError(f"course: {name!r} is not valid JSON (nested too deeply)") from None
     return course_from_dict(data, default)
 
 
