@@ -12,10 +12,12 @@ import numpy as np
 from ._execute import in_global_domain, run_batch, sweep, sweep_grid
 from ._flight import RESULT_NAMES
 from ._params import disturbance_for
-from ._plan import get_plan
+from ._plan import build_plan, get_plan
 from ._terrain import builtin_terrain
 
 EXAMPLE_STARTS = ((0.6, 1.6, 0.5), (3.6, 1.5, 0.5))
+# Fig. 21: SLIP on `long`, starting in the deep well.
+LONG_START = (1.65, 1.1, 0.5)
 
 
 def _nearest_inside(initial: np.ndarray, target) -> np.ndarray:
@@ -27,16 +29,21 @@ def demo(out: str = "jaxhop-demo", cache: bool = True, log=print) -> dict:
 
     Writes `template_regions.png` (Fig. 9), `terrain_domain.png` (Fig. 10),
     `goal_coverage.png` (Fig. 11), `prepares.png` (Fig. 12), `example_runs.png` (Fig. 13),
-    `run.gif`, `doa_none.png` and `doa_wind.png` (Fig. 16) and `summary.json` into `out`,
-    and prints a short table.
+    `run.gif`, `disturbance_wind.png` and `disturbance_sensor.png` (Figs. 14-15: the
+    offline plan open loop against the reactive controller), `doa_none.png` and
+    `doa_wind.png` (Fig. 16), `slip_long.png` (Fig. 21: SLIP on `long` with its BHop plan)
+    and `summary.json` into `out`, and prints a short table.
     """
     import matplotlib.pyplot as plt
 
     from ._plot import (
         animate_run,
+        disturbance_figure,
         doa_figure,
         global_domain_figure,
         goal_coverage_figure,
+        long_run_figure,
+        open_loop_replay,
         prepares_figure,
         runs_figure,
         template_regions_figure,
@@ -45,12 +52,7 @@ def demo(out: str = "jaxhop-demo", cache: bool = True, log=print) -> dict:
     os.makedirs(out, exist_ok=True)
     t0 = time.perf_counter()
     terrain = builtin_terrain("reference")
-    if cache:
-        plan = get_plan(terrain, log=log)
-    else:
-        from ._plan import build_plan
-
-        plan = build_plan(terrain)
+    plan = get_plan(terrain, log=log) if cache else build_plan(terrain)
     log(f"plan: {plan.stats['n_instantiated']} instantiated policies "
         f"({plan.stats['seconds']} s{', from cache' if plan.stats.get('from_cache') else ''})")
     tables = plan.tables()
@@ -74,10 +76,32 @@ def demo(out: str = "jaxhop-demo", cache: bool = True, log=print) -> dict:
     starts = np.stack([_nearest_inside(initial, s) for s in EXAMPLE_STARTS])
     runs = run_batch(plan, starts, key=jax.random.key(0))
     examples = [{k: v[i] for k, v in runs.items()} for i in range(len(starts))]
-    save(runs_figure(terrain, examples, plan.goal, "Two reactive BHop runs on 'reference'"),
-         "example_runs.png")
+    save(runs_figure(terrain, examples, plan.goal, "Two reactive BHop runs on 'reference'",
+                     plan=plan), "example_runs.png")
     figures["run_animation"] = animate_run(terrain, examples[0], os.path.join(out, "run.gif"),
                                            goal=plan.goal)
+
+    # Figs. 14-15: the first example's plan replayed open loop vs. the reactive controller.
+    # Under wind the goal's velocity tolerance is 0.15 m/s: at the default 0.05 m/s the
+    # wind-blind deadbeat keeps every run hopping on the goal (README, docs/decisions.md).
+    disturbed = {}
+    for noise, mode, v_tol in (("wind", "controls", 0.15), ("sensor", "goals", 0.05)):
+        dist, key, tol = disturbance_for(noise), jax.random.key(1), (0.05, 0.05, v_tol)
+        # chunk = the examples' batch: the compiled run from above serves again.
+        reactive = run_batch(plan, starts[:1], key=key, disturbance=dist, chunk=len(starts),
+                             tolerance=np.asarray(tol))
+        reactive = {k: v[0] for k, v in reactive.items()}
+        replay = open_loop_replay(plan, examples[0], disturbance=dist, key=key, mode=mode,
+                                  tolerance=tol)
+        note = f"goal tolerance on ydot {v_tol} m/s" if v_tol != 0.05 else ""
+        save(disturbance_figure(terrain, examples[0], replay, reactive, plan.goal, noise,
+                                wind=float(dist.wind), note=note), f"disturbance_{noise}.png")
+        disturbed[noise] = {
+            "tolerance": list(tol),
+            "open_loop": {"replays": mode, "result": RESULT_NAMES[int(replay["code"])],
+                          "steps": int(replay["steps"])},
+            "reactive": {"result": RESULT_NAMES[int(reactive["code"])],
+                         "steps": int(reactive["steps"])}}
 
     sweeps = {}
     for noise in ("none", "wind"):
@@ -86,12 +110,24 @@ def demo(out: str = "jaxhop-demo", cache: bool = True, log=print) -> dict:
         save(doa_figure(terrain, initial, res["code"], res["steps"], plan.goal,
                         f"BHop, noise {noise}"), f"doa_{noise}.png")
 
+    # Fig. 21: the SLIP model across `long`, driven by the BHop plan (compiles the SLIP
+    # stride and deadbeat: about a minute).
+    long_terrain = builtin_terrain("long")
+    long_plan = get_plan(long_terrain, log=log) if cache else build_plan(long_terrain)
+    slip = run_batch(long_plan, np.asarray([LONG_START]), key=jax.random.key(0), model="slip")
+    slip = {k: v[0] for k, v in slip.items()}
+    save(long_run_figure(long_plan, slip, "slip"), "slip_long.png")
+    log(f"SLIP on 'long': {RESULT_NAMES[int(slip['code'])]} in {int(slip['steps'])} strides")
+
     summary = {
         "terrain": terrain.name,
         "goal": plan.goal.tolist(),
         "plan": plan.summary(),
         "examples": [{"start": s.tolist(), "result": RESULT_NAMES[int(e["code"])],
                       "steps": int(e["steps"])} for s, e in zip(starts, examples)],
+        "disturbed": disturbed,
+        "slip_long": {"start": list(LONG_START), "result": RESULT_NAMES[int(slip["code"])],
+                      "steps": int(slip["steps"])},
         "sweeps": sweeps,
         "figures": figures,
         "seconds": round(time.perf_counter() - t0, 2),
@@ -106,6 +142,12 @@ def demo(out: str = "jaxhop-demo", cache: bool = True, log=print) -> dict:
     for e in summary["examples"]:
         print(f"  run from {np.round(e['start'], 2).tolist()}: {e['result']} in "
               f"{e['steps']} strides")
+    for noise, d in summary["disturbed"].items():
+        print(f"  {noise} noise from {EXAMPLE_STARTS[0]}: open loop {d['open_loop']['result']}"
+              f" after {d['open_loop']['steps']}, reactive {d['reactive']['result']} after "
+              f"{d['reactive']['steps']} strides")
+    sl = summary["slip_long"]
+    print(f"  SLIP on 'long' from {sl['start']}: {sl['result']} in {sl['steps']} strides")
     print(f"  {'sweep':8s} {'runs':>6s} {'success':>8s} {'mean':>6s}  failures")
     for noise, s in sweeps.items():
         fails = ", ".join(f"{k} {v}" for k, v in s["failures"].items() if v) or "-"

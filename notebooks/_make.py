@@ -3,6 +3,7 @@
 Run `python notebooks/_make.py` after editing; the .ipynb files are what users open.
 """
 
+import hashlib
 import pathlib
 
 import nbformat
@@ -130,13 +131,234 @@ print("success", np.mean(r["code"] == 0))'''),
 }
 
 
-def build():
+SLIP = [
+    ("md", """# The SLIP model with BHop plans (section VII, Figs. 19-21)
+
+The ball hopper (BHop) behind the plans has an instantaneous stance. A real spring-mass
+runner is closer to the spring-loaded inverted pendulum (SLIP, eq 10): a point mass on a
+massless spring leg that stays on the ground for a while and swings over its foot.
+jaxhop integrates the SLIP stance with diffrax (Tsit5, float64, events at the bottom of
+the stance and at liftoff). This notebook checks the model, inverts it with the
+position-aware deadbeat of eqs 12-16, and then drives it with the *unchanged* BHop plan:
+the reactive controller has to absorb the mismatch.
+
+The first SLIP call of each kind compiles the stance solver (a minute or so)."""),
+    ("code", '''%matplotlib inline
+import os
+
+import jax
+import jax.numpy as jnp
+import matplotlib.pyplot as plt
+import numpy as np
+
+import jaxhop
+from jaxhop import _plot
+
+# CI runs the notebooks with JAXHOP_NB_QUICK=1 (smaller batches, one terrain).
+QUICK = bool(os.environ.get("JAXHOP_NB_QUICK"))
+N = 9 if QUICK else 41
+hopper = jaxhop.Hopper()'''),
+    ("md", """## One stride, and its apex return map
+
+A stride starts at an apex `(y, z, ydot)`. The controls are the touchdown angle `th_td`
+(positive: foot ahead of the body) and the leg stiffness while compressing (`kc`) and
+decompressing (`kd`). We sweep the touchdown angle from one apex over flat ground at
+height 0, once with `kd = kc` and once with a stiffer decompression. `jax.vmap` runs the
+whole sweep as one batch."""),
+    ("code", '''apex = jnp.array([0.0, 1.3, 1.0])
+th = np.linspace(-0.05, 0.3, N)
+kc = 20_000.0  # N/m
+same = np.stack([th, np.full(N, kc), np.full(N, kc)], 1)
+stiffer = np.stack([th, np.full(N, kc), np.full(N, 1.3 * kc)], 1)
+stride_batch = jax.jit(jax.vmap(jaxhop.slip_apex_map, (None, 0, None, None)))
+next_same, code_same = stride_batch(apex, same, 0.0, hopper)
+next_stiff, code_stiff = stride_batch(apex, stiffer, 0.0, hopper)
+
+fig, axes = plt.subplots(1, 2, figsize=(10, 3.4))
+for nxt, code, label in ((next_same, code_same, "kd = kc"),
+                         (next_stiff, code_stiff, "kd = 1.3 kc")):
+    ok = np.asarray(code) == 0
+    axes[0].plot(th[ok], np.asarray(nxt)[ok, 2], "o-", ms=3, label=label)
+    axes[1].plot(th[ok], np.asarray(nxt)[ok, 1], "o-", ms=3, label=label)
+axes[0].set_ylabel("next apex velocity ydot (m/s)")
+axes[1].set_ylabel("next apex height z (m)")
+for ax in axes:
+    ax.set_xlabel("touchdown angle th_td (rad)")
+    ax.axvline(0.0, color="0.7", lw=0.8)
+    ax.grid(alpha=0.3)
+    ax.legend()
+fig.suptitle("SLIP apex return map from the apex (0, 1.3 m, 1.0 m/s), kc = 20 kN/m")
+fig.tight_layout()'''),
+    ("md", """A steeper touchdown angle brakes the body: the next apex is slower and, with
+`kd = kc`, higher, because the total energy is conserved (the stance is lossless and the
+flight ballistic). A stiffer decompression (`kd > kc`) releases more energy than the
+compression stored. Energy per unit mass, before and after:"""),
+    ("code", '''def energy(a):
+    a = np.asarray(a)
+    return 0.5 * a[..., 2] ** 2 + float(hopper.g) * a[..., 1]
+
+
+e0 = energy(apex)
+ok = np.asarray(code_same) == 0
+rel = np.abs(energy(next_same)[ok] - e0) / e0
+print(f"kd = kc:     {ok.sum()} strides, largest relative energy change {rel.max():.1e}")
+gain = energy(next_stiff)[np.asarray(code_stiff) == 0] - e0
+print(f"kd = 1.3 kc: energy gained {gain.min():.3f} .. {gain.max():.3f} J/kg")
+assert rel.max() < 1e-7 and gain.min() > 0'''),
+    ("md", """## Deadbeat: choosing the controls for a target apex
+
+The SLIP apex map has no closed form, so the deadbeat (eqs 12-16) is a search. `kd`
+follows from energy (eq 12), and `(th_td, kc)` are found by Gauss-Newton with forward-mode
+derivatives through the diffrax solve. We ask for `N` target apexes ahead of the same start
+and check the result with the simulated stride."""),
+    ("code", '''s = np.linspace(0.0, 1.0, N)
+targets = np.stack([0.55 + 0.35 * s, 1.25 + 0.1 * s, 0.7 + 0.6 * s], 1)
+deadbeat = jax.jit(jax.vmap(jaxhop.deadbeat_slip, (None, 0, None, None)))
+u, solved = deadbeat(apex, jnp.asarray(targets), 0.0, hopper)
+reached, code = stride_batch(apex, u, 0.0, hopper)
+err = np.abs(np.asarray(reached) - targets).max(axis=1)
+for t, uu, e, good in zip(targets, np.asarray(u), err, np.asarray(solved)):
+    print(f"target {np.round(t, 3)}: th_td {uu[0]:+.4f} rad, kc {uu[1]:7.0f}, "
+          f"kd {uu[2]:7.0f} N/m -> error {e:.1e}{'' if good else '  (limits hit)'}")
+assert np.all(err[np.asarray(solved)] < 1e-3)'''),
+    ("md", """## SLIP running on a BHop plan (Fig. 19)
+
+Now the SLIP model runs on `reference` with the plan built for BHop. At every apex the
+controller still picks the first deployed policy whose domain holds the measured state,
+but it applies the *SLIP* deadbeat toward that policy's goal. The goals were computed for
+BHop, and the SLIP deadbeat cannot always reach them (its controls are limited and its
+stance moves the body along the ground). The next apex is therefore off the planned one,
+and the controller simply picks again. The shaded regions are cross-sections of the
+chosen policy's domain (dark red, at the apex's velocity) and feasible goal (light green,
+at the goal's velocity) at each apex, as in the paper's Figs. 13 and 19."""),
+    ("code", '''terrain = jaxhop.builtin_terrain("reference")
+plan = jaxhop.get_plan(terrain, progress=False)
+starts = np.array([[0.6, 1.6, 0.5], [3.6, 1.5, 0.5]])
+slip = jaxhop.run_batch(plan, starts, model="slip", key=jax.random.key(0))
+bhop = jaxhop.run_batch(plan, starts, key=jax.random.key(0))
+slip_runs = [{k: v[i] for k, v in slip.items()} for i in range(len(starts))]
+bhop_runs = [{k: v[i] for k, v in bhop.items()} for i in range(len(starts))]
+fig = _plot.runs_figure(terrain, bhop_runs, plan.goal, "BHop on 'reference'", plan=plan)
+fig = _plot.slip_runs_figure(plan, slip_runs)
+for i in range(len(starts)):
+    print(f"start {starts[i]}: BHop {jaxhop.RESULT_NAMES[bhop['code'][i]]} in "
+          f"{bhop['steps'][i]} strides, SLIP {jaxhop.RESULT_NAMES[slip['code'][i]]} in "
+          f"{slip['steps'][i]} strides")'''),
+    ("md", """The legs drawn at touchdown and liftoff show what differs from BHop: the SLIP
+foot lands ahead of the body and the body vaults over it, so the stance covers ground.
+jaxhop applies the BHop plan *without* the SLIP corrections of section VII-A (eqs 35-37;
+see the README), so some runs fail where the paper's succeed.
+
+## A longer terrain (Fig. 21)
+
+The paper's last figure runs SLIP across a longer course that starts in a deep well. The
+open circles are the goals of the policies chosen at each apex, each joined to the apex
+the SLIP stride actually reached. (With `JAXHOP_NB_QUICK=1` this cell reuses the
+`reference` run instead, to spare a second plan and a second compilation.)"""),
+    ("code", '''if QUICK:
+    long_plan, long_run = plan, slip_runs[1]
+else:
+    long_plan = jaxhop.get_plan(jaxhop.builtin_terrain("long"), progress=False)
+    start = [1.65, 1.1, 0.5]  # in the deep well
+    r = jaxhop.run_batch(long_plan, [start], model="slip", key=jax.random.key(0))
+    long_run = {k: v[0] for k, v in r.items()}
+fig = _plot.long_run_figure(long_plan, long_run, "slip")
+steps = int(long_run["steps"])
+gap = np.abs(long_run["apexes"][1:steps + 1] - long_plan.goals[long_run["policies"][:steps]])
+print(f"{jaxhop.RESULT_NAMES[long_run['code']]} in {steps} strides; distance from the "
+      f"chosen BHop goal per stride: median {np.nanmedian(gap[:, :2]):.3f} m (position), "
+      f"{np.nanmedian(gap[:, 2]):.3f} m/s (velocity)")'''),
+]
+
+PARKOUR = [
+    ("md", """# Parkour with MPPC (Albracht et al. 2024)
+
+The second planner in jaxhop is a receding-horizon jump planner for a hopping leg on
+parkour courses: blocks to jump on and over, floor areas where the leg must not land, and
+environments that change while the robot runs. At every replan, MPPC plans a sequence of
+ballistic jumps a horizon ahead (2 m) and executes only the first. The original solves a
+mixed-integer program with Drake and SNOPT. jaxhop solves the same problem exactly over a
+grid of landing points: all-pairs jump feasibility in JAX, then dynamic programming over
+the number of jumps."""),
+    ("code", '''%matplotlib inline
+import os
+
+import matplotlib.pyplot as plt
+import numpy as np
+
+from jaxhop import mppc
+
+# CI runs the notebooks with JAXHOP_NB_QUICK=1 (a coarser landing grid).
+QUICK = bool(os.environ.get("JAXHOP_NB_QUICK"))
+GRID = 0.04 if QUICK else 0.02  # m
+mppc.list_courses()'''),
+    ("md", """## A static course
+
+`mppc-sim-1` is one of the nine courses that ship with the package (the original's
+simulation course). Blocks are grey; red strips on the floor are restricted areas."""),
+    ("code", '''course = mppc.load_course("mppc-sim-1")
+planner = mppc.MPPC(settings=mppc.Settings(grid=GRID))
+result = mppc.run_course(course, planner)
+out = result.to_json()
+{k: out[k] for k in ("finished", "jumps", "flight_time", "violations", "replan_ms")}'''),
+    ("code", '''fig = mppc.plot_run(course, result)
+fig'''),
+    ("md", """The solid blue lines are the foot paths of the executed jumps; the dashed orange
+ones are the whole plan made at the first replan. Each replan looks 2 m ahead and keeps
+only its first jump, so the plan made later in the run can differ from the first one.
+Below we compare the plan of each replan with the jump that was then executed."""),
+    ("code", '''first = [p.jumps[0] for p in result.plans]
+same = all(abs(f.x1 - e.x1) < 1e-12 and abs(f.t - e.t) < 1e-12
+           for f, e in zip(first, result.executed))
+print(f"{len(result.plans)} replans, {len(result.executed)} executed jumps; "
+      f"every executed jump is its replan's first jump: {same}")
+fig, axes = plt.subplots(1, 2, figsize=(11, 3.2))
+axes[0].plot([p.n_jumps for p in result.plans], "o-", ms=4)
+axes[0].set_xlabel("replan")
+axes[0].set_ylabel("jumps in the plan")
+axes[0].set_title("Planned jumps to the horizon end")
+axes[1].bar(range(len(result.executed)), [j.t for j in result.executed], color="tab:blue")
+axes[1].set_xlabel("executed jump")
+axes[1].set_ylabel("flight time (s)")
+axes[1].set_title(f"Executed jumps: {result.flight_time:.2f} s of flight in total")
+fig.tight_layout()'''),
+    ("md", """## Planned and executed, replan by replan
+
+Drawing the plan of a later replan shows the horizon moving with the robot."""),
+    ("code", '''mid = len(result.plans) // 2
+fig = mppc.plot_run(course, result, replan=mid)
+fig'''),
+    ("md", """## A changing course
+
+On `mppc-hw-dynamic-1` the blocks move while the robot runs: each snapshot replaces the
+environment from a given jump on. The planner only sees the environment in force at each
+replan. The independent checker verifies every executed jump against the environment it
+was made in, and counts violations."""),
+    ("code", '''dyn = mppc.load_course("mppc-hw-dynamic-1")
+print(f"{len(dyn.snapshots)} snapshots, from jumps {[k for k, _ in dyn.snapshots]}")
+res = mppc.run_course(dyn, mppc.MPPC(settings=mppc.Settings(grid=GRID)))
+ref = {r["course"]: r for r in mppc.reference_results()["results"] if r["mode"] == "as_given"}
+print(f"jaxhop: finished {res.finished}, {len(res.executed)} jumps, "
+      f"{res.flight_time:.3f} s flight, {len(res.violations)} violations")
+print(f"original (Drake + SNOPT): finished {ref[dyn.name]['finished']}, "
+      f"{ref[dyn.name]['jumps']} jumps, {ref[dyn.name]['flight_time_s']:.3f} s flight")
+assert not res.violations
+mppc.plot_run(dyn, res)'''),
+]
+
+NOTEBOOKS["03_slip"] = SLIP
+NOTEBOOKS["04_parkour"] = PARKOUR
+
+
+def build(out: pathlib.Path = HERE):
     for name, cells in NOTEBOOKS.items():
         nb = new_notebook(cells=[new_markdown_cell(src) if kind == "md" else
                                  new_code_cell(src) for kind, src in cells])
+        for i, cell in enumerate(nb.cells):  # stable ids: regenerating changes no line
+            cell.id = hashlib.sha1(f"{name}/{i}".encode()).hexdigest()[:8]
         nb.metadata["kernelspec"] = {"name": "python3", "display_name": "Python 3",
                                      "language": "python"}
-        nbformat.write(nb, HERE / f"{name}.ipynb")
+        nbformat.write(nb, pathlib.Path(out) / f"{name}.ipynb")
 
 
 if __name__ == "__main__":

@@ -81,3 +81,21 @@ def test_step_slip_equal_stiffness_conserves_energy(tmp_path):
     e0, e1 = 0.5 * v0**2 + 9.81 * z0, 0.5 * v1**2 + 9.81 * z1
     assert data["result"] == "ok" and y1 > y0
     assert abs(e1 - e0) / e0 < 1e-8
+
+
+def test_run_animate_writes_a_gif(tmp_path, monkeypatch, capsys):
+    from PIL import Image
+
+    monkeypatch.setenv("JAXHOP_CACHE", str(tmp_path / "cache"))
+    gif = tmp_path / "run.gif"
+    assert main(["run", "--terrain", "flat", "--apex", "0.5,1.6,0.5", "--animate",
+                 str(gif)]) == 0
+    with Image.open(gif) as im:
+        assert im.n_frames > 10 and im.size[0] > 100
+    capsys.readouterr()
+    # A format other than GIF / MP4 is refused before any work, in one line.
+    assert main(["run", "--terrain", "flat", "--animate", str(tmp_path / "run.avi")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("jaxhop: error: --animate:") and ".gif or .mp4" in err
+    assert len(err.splitlines()) == 1
+    assert not (tmp_path / "run.avi").exists()

@@ -5,7 +5,26 @@ import pathlib
 
 import pytest
 
-NOTEBOOKS = sorted(pathlib.Path(__file__).parent.parent.glob("notebooks/*.ipynb"))
+NOTEBOOK_DIR = pathlib.Path(__file__).parent.parent / "notebooks"
+NOTEBOOKS = sorted(NOTEBOOK_DIR.glob("*.ipynb"))
+GENERATED = ("01_bhop_planning", "02_robustness_sweeps", "03_slip", "04_parkour")
+
+
+def test_stored_notebooks_match_make(tmp_path):
+    """The .ipynb files are what `notebooks/_make.py` writes: up to date, without outputs."""
+    import importlib.util
+
+    pytest.importorskip("nbformat")
+    spec = importlib.util.spec_from_file_location("_make", NOTEBOOK_DIR / "_make.py")
+    make = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(make)
+    make.build(tmp_path)
+    assert set(GENERATED) <= set(make.NOTEBOOKS)
+    for name in make.NOTEBOOKS:
+        fresh, stored = tmp_path / f"{name}.ipynb", NOTEBOOK_DIR / f"{name}.ipynb"
+        assert stored.exists(), f"run python notebooks/_make.py ({name} is missing)"
+        assert fresh.read_text() == stored.read_text(), \
+            f"{name}.ipynb is stale: run python notebooks/_make.py"
 
 
 @pytest.mark.slow
