@@ -20,7 +20,18 @@ Benchmarks:
   equal).
 - `decision`: latency of one reactive decision (first match, deadbeat, clip) for one
   measured apex; JAX: `jit(decide)` on a single state.
-- `slip_strides`, `slip_deadbeat`, `slip_sweep`: TODO hooks (SLIP is built separately).
+- `slip_strides`: 4 096 random SLIP strides over flat ground; JAX `vmap(slip_stride)`
+  (diffrax), twin `solve_ivp` with events in a loop over all of them (`--quick`: every 4-th,
+  scaled per item; codes and apexes are checked).
+- `slip_deadbeat`: 1 024 deadbeat solves to reachable targets; JAX `vmap(deadbeat_slip)`
+  (Gauss-Newton through diffrax), twin the same iteration with a finite-difference Jacobian
+  on every 32-th target (`--quick`: every 128-th), scaled per item.
+- `slip_sweep`: SLIP runs (`run_batch(plan, initial, model="slip")`) from 1 024 of the 4 470
+  nominal initial conditions on `reference`, evenly spaced (`--quick`: 64); the twin on 32
+  (`--quick`: 8) of those, scaled per initial condition; per-run outcome and step count
+  compared.
+
+`"todo"` lists benchmarks not wired in (none now).
 """
 
 from __future__ import annotations
@@ -193,24 +204,124 @@ def bench_decision(jp):
     return entry("decision", "1 apex", jax_s, numpy_s, first - jax_s, note)
 
 
-# --- SLIP: TODO hooks ------------------------------------------------------------------------
+# --- SLIP ----------------------------------------------------------------------------------
 
-# TODO(SLIP): `slip_strides` (4 096 SLIP strides), `slip_deadbeat` (deadbeat solves, batch of
-# 1 024) and `slip_sweep` (nominal SLIP sweep on `reference`, NumPy/SciPy on a documented
-# subsample) are built by the SLIP engineer. Each hook returns an `entry(...)` dict; until
-# then they return None and are listed under "todo" in the output.
+
+def random_slip_strides(seed, n):
+    """Random admissible SLIP strides over flat ground at 0 (as docs/slip.md)."""
+    from jaxhop._slip_deadbeat import KAPPA_HI, KAPPA_LO, RATIO_HI, RATIO_LO
+
+    hopper = Hopper()
+    mg = hopper.m * hopper.g / hopper.rho0
+    rng = np.random.default_rng(seed)
+    apex = np.stack([rng.uniform(-1, 1, n), rng.uniform(1.1, 1.6, n),
+                     rng.uniform(-2.5, 2.5, n)], axis=1)
+    kc = rng.uniform(KAPPA_LO, KAPPA_HI, n) * mg
+    u = np.stack([rng.uniform(-0.45, 0.45, n), kc, kc * rng.uniform(RATIO_LO, RATIO_HI, n)],
+                 axis=1)
+    return apex, u
 
 
 def bench_slip_strides(quick: bool):
-    return None  # TODO(SLIP): diffrax vmap vs solve_ivp with events, 4 096 strides
+    from jaxhop._slip import slip_stride
+    from jaxhop._terrain import make_terrain
+    from jaxhop.reference import _slip as RS
+
+    n = 4096
+    blocks = [(-20.0, 20.0, 0.0)]
+    terrain, r_terrain = make_terrain(blocks), R.Terrain.from_blocks(blocks)
+    apex, u = random_slip_strides(0, n)
+    fn = jax.jit(jax.vmap(slip_stride, (0, 0, None, None)))
+    ja, ju = jnp.asarray(apex), jnp.asarray(u)
+    first, warm, (nxt, code, _) = timed(lambda: fn(ja, ju, terrain, Hopper()), 2 if quick else 3)
+    nxt, code = np.asarray(nxt), np.asarray(code)
+    every = 4 if quick else 1
+    sub = np.arange(0, n, every)
+    t0 = time.perf_counter()
+    ref = [RS.slip_stride(apex[i], u[i], r_terrain, R.Hopper()) for i in sub]
+    numpy_s = (time.perf_counter() - t0) * n / sub.size
+    r_code = np.array([r[1] for r in ref])
+    ok = (code[sub] == 0) & (r_code == 0)
+    err = float(np.max(np.abs(np.array([r[0] for r in ref])[ok] - nxt[sub][ok])))
+    which = (f"all {n} strides" if every == 1
+             else f"every {every}-th stride ({sub.size}), scaled per item")
+    note = (f"random strides over flat ground (apex y in [-1, 1], z in [1.1, 1.6], ydot in "
+            f"[-2.5, 2.5]; admissible controls); JAX vmap(slip_stride) (diffrax Tsit5), twin "
+            f"solve_ivp DOP853 with events, a Python loop over "
+            f"{which}, both rtol = atol = 1e-10; {int((code == 0).sum())} complete; codes "
+            f"identical on the twin's strides: {bool(np.array_equal(code[sub], r_code))}; max apex "
+            f"difference {err:.1e}")
+    return entry("slip_strides", f"{n} strides", warm, numpy_s, first - warm, note)
 
 
 def bench_slip_deadbeat(quick: bool):
-    return None  # TODO(SLIP): optimistix/optax batch of 1 024 vs scipy.optimize
+    from jaxhop._slip import slip_apex_map
+    from jaxhop._slip_deadbeat import deadbeat_slip
+    from jaxhop.reference import _slip as RS
+
+    n = 1024
+    hopper = Hopper()
+    apex, u = random_slip_strides(1, 2 * n)
+    goal, code = jax.jit(jax.vmap(slip_apex_map, (0, 0, None, None)))(
+        jnp.asarray(apex), jnp.asarray(u), 0.0, hopper)
+    keep = np.nonzero(np.asarray(code) == 0)[0][:n]
+    apex, goal = apex[keep], np.asarray(goal)[keep]
+    fn = jax.jit(jax.vmap(lambda a, g: deadbeat_slip(a, g, 0.0, hopper)))
+    ja, jg = jnp.asarray(apex), jnp.asarray(goal)
+    first, warm, (ju, jok) = timed(lambda: fn(ja, jg), 1 if quick else 2)
+    ju, jok = np.asarray(ju), np.asarray(jok)
+    every = 128 if quick else 32
+    sub = np.arange(0, n, every)
+    t0 = time.perf_counter()
+    ref = [RS.deadbeat_slip(apex[i], goal[i], 0.0, R.Hopper()) for i in sub]
+    numpy_s = (time.perf_counter() - t0) * n / sub.size
+    du = np.array([np.max(np.abs(r[0] - ju[i]) / np.maximum(1.0, np.abs(ju[i])))
+                   for r, i in zip(ref, sub)])
+    same_ok = int(sum(r[1] == jok[i] for r, i in zip(ref, sub)))
+    note = (f"{n} reachable targets (apexes of random strides over flat ground); JAX "
+            f"vmap(deadbeat_slip, 'gradient'); twin: the same Gauss-Newton iteration and "
+            f"starts with a finite-difference Jacobian (scipy solve_ivp strides), timed on "
+            f"every {every}-th target ({sub.size}) and scaled per item; JAX ok "
+            f"{float(jok.mean()):.4f}; on the subsample ok flags equal {same_ok}/{sub.size}, "
+            f"controls' largest relative difference {float(du.max()):.1e} "
+            f"(median {float(np.median(du)):.1e})")
+    return entry("slip_deadbeat", f"{n} targets", warm, numpy_s, first - warm, note)
 
 
-def bench_slip_sweep(quick: bool):
-    return None  # TODO(SLIP): JAX sweep vs twin on a documented subsample, per item
+def bench_slip_sweep(jp, quick: bool):
+    terrain = jp.terrain
+    grid = sweep_grid(terrain)
+    initial = grid[jaxhop.in_global_domain(grid, jp.tables(), Hopper())]
+    n_all = initial.shape[0]
+    # JAX: an evenly spaced subsample of the nominal sweep (1 024 of 4 470; --quick: 64): a
+    # SLIP run decides by a deadbeat solve at every apex, and runs that circle the goal box
+    # go on to max_steps = 60, which a vmapped chunk waits for, so the whole sweep would take
+    # tens of minutes here. The twin: an evenly spaced subsample of what JAX ran; both are
+    # compared per initial condition.
+    n_jax = 64 if quick else min(1024, n_all)
+    runs = initial[np.linspace(0, n_all - 1, n_jax).round().astype(int)]
+    first, warm, out = timed(lambda: run_batch(jp, runs, model="slip"), 1)
+    n_ref = 8 if quick else 32
+    pick = np.linspace(0, n_jax - 1, n_ref).round().astype(int)
+    rt, rtm = to_reference(terrain, jp.templates)
+    ctrl = R.Controller(reference_plan_with(jp, R.situate(rt, rtm, R.Hopper())))
+    t0 = time.perf_counter()
+    ref = R.run_batch(ctrl, runs[pick], model="slip")
+    numpy_s = (time.perf_counter() - t0) * n_jax / n_ref
+    same = int(np.sum((ref["code"] == out["code"][pick]) & (ref["steps"] == out["steps"][pick])))
+    names = ("success",) + R.FAILURE_NAMES
+    outcomes = ", ".join(f"{names[c]} {int((out['code'] == c).sum())}"
+                         for c in range(len(names)) if (out["code"] == c).any())
+    note = (f"SLIP runs on the BHop plan (model='slip': decide_slip, the SLIP deadbeat on the "
+            f"best-reaching of the first matches) from {n_jax} of the {n_all} nominal initial "
+            f"conditions "
+            f"{'(every ~' + str(n_all // n_jax) + '-th) ' if n_jax < n_all else ''}"
+            f"in JAX (run_batch, {int(out['steps'].sum())} strides, longest run "
+            f"{int(out['steps'].max())}; {outcomes}); the twin on "
+            f"{n_ref} of them, evenly spaced, {int(ref['steps'].sum())} strides, time scaled "
+            f"per initial condition; per-run outcome and step count equal on "
+            f"{same}/{n_ref}")
+    return entry("slip_sweep", f"reference, {n_jax} ICs", warm, numpy_s, first - warm, note)
 
 
 def main(argv=None):
@@ -234,15 +345,9 @@ def main(argv=None):
     report(plan_entry)
     report(bench_bhop_sweep(jp, args.quick))
     report(bench_decision(jp))
-    for name, hook in (("slip_strides", bench_slip_strides),
-                       ("slip_deadbeat", bench_slip_deadbeat),
-                       ("slip_sweep", bench_slip_sweep)):
-        e = hook(args.quick)
-        if e is None:
-            todo.append(name)
-            print(f"{name:12s} TODO (SLIP benchmarks not wired in yet)", flush=True)
-        else:
-            report(e)
+    report(bench_slip_strides(args.quick))
+    report(bench_slip_deadbeat(args.quick))
+    report(bench_slip_sweep(jp, args.quick))
     out = {"device": device_name(), "quick": args.quick, "benchmarks": results, "todo": todo}
     out["profile"] = {"jax_plan_stage_s": jp.stats.get("stage_seconds"),
                       "numpy_plan_stage_s": plan_entry.pop("stages")}

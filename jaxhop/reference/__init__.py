@@ -1,5 +1,8 @@
 """A plain NumPy/SciPy twin of jaxhop's BHop pipeline, for equivalence tests and benchmarks.
 
+The SLIP model (stance with `scipy.integrate.solve_ivp`, stride on a terrain, deadbeat) is
+in `jaxhop.reference._slip`; `run_one` / `run_batch` / `sweep` take `model="slip"`.
+
 It imports neither jax nor the JAX modules of jaxhop. It computes the same things in the
 same order of floating-point operations, but the way the paper's algorithm is written:
 one candidate pair, one goal, one initial condition at a time, vectorised only within one
@@ -44,3 +47,6 @@ from ._policies import situate_goal as situate_goal
 from ._policies import world_boxes as world_boxes
 from ._regions import TemplateRegions as TemplateRegions
 from ._regions import template_boxes as template_boxes
+from ._slip import deadbeat_slip as deadbeat_slip
+from ._slip import slip_apex_map as slip_apex_map
+from ._slip import slip_stride as slip_stride

@@ -1,4 +1,10 @@
-"""Reactive execution (Fig. 8) and domain-of-attraction sweeps, one run at a time."""
+"""Reactive execution (Fig. 8) and domain-of-attraction sweeps, one run at a time.
+
+`model="slip"` runs the SLIP model (`_slip`) with the controller of `jaxhop._execute`'s
+`decide_slip`: the SLIP deadbeat (eqs 12-16) on the `SLIP_CANDIDATES` highest-priority
+matching policies, the first whose predicted stride lands within `SLIP_ACCEPT` of its goal
+(else the smallest scaled miss), and SLIP strides on the terrain.
+"""
 
 from __future__ import annotations
 
@@ -20,8 +26,12 @@ from ._model import (
     touchdown_one,
 )
 from ._plan import Plan
+from ._slip import SEARCH_ATOL, SEARCH_RTOL, deadbeat_slip, slip_apex_map, slip_stride
 
 _BIG = np.iinfo(np.int32).max
+# Mirrors of jaxhop._execute's SLIP decision constants.
+SLIP_CANDIDATES = 2
+SLIP_ACCEPT = np.array([0.05, 0.05, 0.05])
 
 
 class Controller:
@@ -73,24 +83,75 @@ class Controller:
             return False, -1
         return True, int(self.plan.order[np.argmax(hit)])
 
-    def decide(self, apex):
-        """Controls for one measured apex: `(found, u, instantiated)`."""
+    def decide(self, apex, model="bhop"):
+        """Controls for one measured apex: `(found, u, instantiated)`.
+
+        `model="slip"`: the SLIP deadbeat to the matched goal, within the SLIP limits.
+        """
+        if model == "slip":
+            return self.decide_slip(apex)
         found, s, a = self.first_match(apex)
+        return found, self.controls(apex, s, a, model), a
+
+    def decide_slip(self, apex, n_candidates=SLIP_CANDIDATES):
+        """SLIP controls for one measured apex (mirrors `jaxhop._execute.decide_slip`).
+
+        The SLIP deadbeat for each of the `n_candidates` highest-priority matching policies,
+        its stride predicted over the policy's foothold; the first in deployment order whose
+        prediction lies within `SLIP_ACCEPT` of its goal wins, else the smallest miss
+        relative to `SLIP_ACCEPT`, else (no completed stride) the first match.
+
+        Returns:
+            `(found, u, instantiated)`; `u` is None when nothing matches.
+        """
+        apex = np.asarray(apex, float)
+        ids, inside = self.plan.situation.candidate_situated_one(apex)
+        pos = np.where(inside, self.best_pos[ids], _BIG)
+        order = np.argsort(pos, kind="stable")[:n_candidates]
+        order = order[pos[order] < _BIG]
+        if order.size == 0:
+            return False, None, -1
+        sit = self.plan.situation
+        us, misses, insts = [], [], []
+        for k in order:
+            s = int(ids[k])
+            a = int(self.best_inst[s])
+            goal = self.plan.goals[a]
+            h = sit.segs.centre[s // sit.templates.n, 1]
+            u, _ = deadbeat_slip(apex, goal, h, sit.hopper)
+            pred, code = slip_apex_map(apex, u, h, sit.hopper, SEARCH_RTOL, SEARCH_ATOL)
+            ok = code == OK and np.all(np.isfinite(pred))
+            misses.append(float(np.max(np.abs(pred - goal) / SLIP_ACCEPT)) if ok else np.inf)
+            us.append(u)
+            insts.append(a)
+        misses = np.asarray(misses)
+        good = misses <= 1.0
+        pick = int(np.argmax(good)) if good.any() else int(np.argmin(misses))
+        if not np.isfinite(misses[pick]):
+            pick = 0
+        return True, us[pick], insts[pick]
+
+    def controls(self, apex, s, a, model="bhop"):
+        """The deadbeat controls of `decide` for the matched situated / instantiated policy."""
         sit = self.plan.situation
         nt = sit.templates.n
         h = sit.segs.centre[s // nt, 1]
+        if model == "slip":
+            return deadbeat_slip(apex, self.plan.goals[a], h, sit.hopper)[0]
         u = deadbeat_bhop(apex, self.plan.goals[a], h, sit.hopper)
         lo, hi = self.lo[s % nt], self.hi[s % nt]
         u = np.where(np.isfinite(u), u, hi)
-        return found, np.clip(u, lo, hi), a
+        return np.clip(u, lo, hi)
 
 
 def run_one(ctrl: Controller, apex0, *, true_terrain: Terrain | None = None, wind=0.0,
-            noise=None, goal=None, tolerance=(0.05, 0.05, 0.05), max_steps=60):
+            noise=None, goal=None, tolerance=(0.05, 0.05, 0.05), max_steps=60,
+            model="bhop"):
     """One run of the reactive controller (mirrors `jaxhop._execute.run_one`).
 
     Arguments:
         noise: `(max_steps, 3)` additive measurement noise per apex (already scaled), or None.
+        model: `"bhop"` or `"slip"` (strides and deadbeat of that model).
 
     Returns:
         `(code, steps, apexes)`: result code, strides taken, the visited apexes.
@@ -107,11 +168,16 @@ def run_one(ctrl: Controller, apex0, *, true_terrain: Terrain | None = None, win
             code = SUCCESS
             break
         measured = apex if noise is None else apex + noise[k]
-        found, u, _ = ctrl.decide(measured)
+        if model == "slip":
+            found, u, _ = ctrl.decide_slip(measured)
+        else:
+            found, s, a = ctrl.first_match(measured)
+            u = ctrl.controls(measured, s, a, model) if found else None
         if not found:
             code = OUTSIDE_DOMAIN
             break
-        nxt, s_code, _ = bhop_stride(apex, u, terrain, plan.hopper, wind)
+        stride = slip_stride if model == "slip" else bhop_stride
+        nxt, s_code, _ = stride(apex, u, terrain, plan.hopper, wind)
         if s_code == OK and not np.all(np.isfinite(nxt)):
             s_code = SOLVER
         steps += 1
