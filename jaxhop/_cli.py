@@ -38,6 +38,131 @@ def _positive(text: str, field: str) -> float:
     return v
 
 
+def _bounded(values, field: str, limit: float):
+    """Raise unless every value has magnitude at most `limit` (absurd sizes are errors)."""
+    for v in values:
+        if abs(v) > limit:
+            raise InputError(f"{field}: |{v:g}| exceeds the limit {limit:g}")
+    return values
+
+
+def _count(text: str, field: str, hi: int) -> int:
+    """A whole number in [1, hi] (`--max-steps`, `--chunk`): 2.5 is an error, not 2."""
+    if not isinstance(text, str):
+        raise InputError(f"{field}: expected a whole number, got {text!r}")
+    try:
+        v = int(text)
+    except ValueError:
+        raise InputError(f"{field}: expected a whole number, got {text!r}") from None
+    if not 1 <= v <= hi:
+        raise InputError(f"{field}: must lie in [1, {hi}], got {v}")
+    return v
+
+
+MAX_CHUNK = 65_536
+MAX_SPEED = 100.0  # |ydot| of an apex (m/s)
+MAX_POSITION = 1.0e4  # |y|, |z| of an apex (m)
+
+
+def _check_sweep_args(args):
+    """Every sweep number, the terrain and the grid size, before any plan is built."""
+    from ._execute import MAX_GRID
+
+    dy, dz = _positive(args.dy, "--dy"), _positive(args.dz, "--dz")
+    (ydot0,) = _bounded(_floats(args.ydot0, 1, "--ydot0"), "--ydot0", MAX_SPEED)
+    if args.chunk is not None:
+        _count(args.chunk, "--chunk", MAX_CHUNK)
+    _setting(args)
+    terrain, _ = _terrain_and_goal(args)
+    (y0, y1), h = terrain.y_range, [b[2] for b in terrain.blocks()]
+    n = (math.floor((y1 - y0) / dy) + 1) * (math.floor((max(h) - min(h) + 1.6) / dz) + 1)
+    if n > MAX_GRID:
+        raise InputError(f"--dy/--dz: the grid would have about {n:.3g} initial states, at "
+                         f"most {MAX_GRID} allowed")
+
+
+def _check_step_args(model: str, apex, u, wind: float, terrain):
+    """`jaxhop step`: an apex in the air over the map, controls and wind of sane size."""
+    _bounded(apex[:2], "--apex", MAX_POSITION)
+    _bounded(apex[2:], "--apex", MAX_SPEED)
+    y, z, _ = apex
+    y0, y1 = terrain.y_range
+    if not y0 <= y <= y1:
+        raise InputError(f"--apex: y = {y:g} lies off the map [{y0:g}, {y1:g}]")
+    under = [h for s, e, h in terrain.blocks() if s <= y <= e]
+    if under and not z > max(under) + 1.0:
+        raise InputError(f"--apex: z = {z:g} must exceed the ground under it "
+                         f"({max(under):g}) by more than the leg length 1 m")
+    _bounded([wind], "--wind", 100.0)
+    if model == "slip":
+        _bounded(u[1:], "--controls", 1.0e8)
+    else:
+        if not abs(u[0]) <= 1.0:
+            raise InputError(f"--controls: |dy| must be at most the leg length 1 m, got {u[0]}")
+        if not abs(u[1]) < math.pi / 2:
+            raise InputError(f"--controls: th must lie in (-pi/2, pi/2), got {u[1]}")
+        if u[2] > 100:
+            raise InputError(f"--controls: k must be at most 100, got {u[2]}")
+
+
+def _precheck(args):
+    """Checks that need no terrain or plan, before any command starts its work."""
+    _check_outputs(args)
+    if args.command == "run":
+        apex = _floats(args.apex, 3, "--apex")
+        _bounded(apex[:2], "--apex", MAX_POSITION)
+        _bounded(apex[2:], "--apex", MAX_SPEED)
+
+
+def _check_outputs(args):
+    """Output paths that cannot be written fail now, not after minutes of work."""
+    for flag in ("json", "plot"):
+        path = getattr(args, flag, None)
+        if path is None:
+            continue
+        folder = os.path.dirname(os.path.abspath(path)) if path else ""
+        if not path or os.path.isdir(path) or not os.path.isdir(folder):
+            raise InputError(f"--{flag}: cannot write {path!r} (no such folder, or a folder)")
+    out = getattr(args, "out", None)
+    if out is not None and (not out or os.path.exists(out) and not os.path.isdir(out)):
+        raise InputError(f"--out: {out!r} is not a folder")
+    ck = getattr(args, "checkpoint", None)
+    if ck is not None and (not ck or os.path.exists(ck) and not os.path.isdir(ck)):
+        raise InputError(f"--checkpoint: {ck!r} is not a folder")
+
+
+def _init_distributed(args):
+    """`jax.distributed.initialize()` from the environment, before JAX starts its backend.
+
+    `JAX_COORDINATOR_ADDRESS` (host:port of process 0), `JAX_NUM_PROCESSES` and
+    `JAX_PROCESS_ID`; where the last two are unset JAX detects them (SLURM, Open MPI, ...).
+    Only process 0 writes `--json` and `--plot`.
+    """
+    import jax
+
+    kwargs = {}
+    for name, env in (("num_processes", "JAX_NUM_PROCESSES"), ("process_id", "JAX_PROCESS_ID")):
+        text = os.environ.get(env)
+        if text is not None:
+            try:
+                kwargs[name] = int(text)
+            except ValueError:
+                raise InputError(f"{env}: expected a whole number, got {text!r}") from None
+    if "num_processes" in kwargs and not 1 <= kwargs["num_processes"] <= 100_000:
+        raise InputError(f"JAX_NUM_PROCESSES: must be >= 1, got {kwargs['num_processes']}")
+    if "process_id" in kwargs and not 0 <= kwargs["process_id"] < kwargs.get(
+            "num_processes", 100_000):
+        raise InputError(f"JAX_PROCESS_ID: must lie in [0, JAX_NUM_PROCESSES), got "
+                         f"{kwargs['process_id']}")
+    try:
+        jax.distributed.initialize(**kwargs)
+    except (ValueError, TypeError, RuntimeError) as err:
+        raise InputError(f"--distributed: cannot initialize jax.distributed "
+                         f"({' '.join(str(err).split())[:200]})") from None
+    if jax.process_index() != 0:
+        args.json = args.plot = None
+
+
 def _seed(text: str) -> int:
     if not isinstance(text, str):
         raise InputError(f"--seed: expected a non-negative integer, got {text!r}")
@@ -59,7 +184,8 @@ def _common(p, model=True, noise=False, models=("bhop",)):
                    help="deployment priority")
     if model:
         p.add_argument("--model", default="bhop", choices=models,
-                       help="slip runs the SLIP model on the BHop plan (run only, so far)")
+                       help="slip: the SLIP model on the BHop plan with the SLIP adjustments "
+                       "(eqs 35-37)")
     if noise:
         p.add_argument("--noise", default="none", choices=("none", "wind", "sensor", "ground"))
         p.add_argument("--seed", default="0", help="seed of every random draw")
@@ -73,10 +199,10 @@ def build_parser() -> argparse.ArgumentParser:
                      "rough terrain (Arslan & Saranli 2012) and MPPC parkour, in JAX.")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
     p = sub.add_parser("plan", help="build (or load) the plan and report its size")
-    _common(p)
+    _common(p, models=("bhop", "slip"))
     p.set_defaults(func=cmd_plan)
     p = sub.add_parser("sweep", help="domain-of-attraction sweep (SPEC section 12)")
-    _common(p, noise=True)
+    _common(p, noise=True, models=("bhop", "slip"))
     p.add_argument("--dy", default="0.05")
     p.add_argument("--dz", default="0.05")
     p.add_argument("--ydot0", default="0.5")
@@ -84,11 +210,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--checkpoint", default=None, metavar="DIR",
                    help="save finished chunks here; a rerun resumes where it stopped")
     p.add_argument("--chunk", default=None, help="runs per chunk (default: one per device)")
+    p.add_argument("--distributed", action="store_true",
+                   help="one of several processes under jax.distributed (coordinator from "
+                   "JAX_COORDINATOR_ADDRESS, JAX_NUM_PROCESSES, JAX_PROCESS_ID, or the "
+                   "cluster's environment); each runs its share of the chunks")
     p.set_defaults(func=cmd_sweep)
     p = sub.add_parser("run", help="one run from one initial apex")
     _common(p, noise=True, models=("bhop", "slip"))
     p.add_argument("--apex", default="0.6,1.6,0.5", help="initial apex y,z,ydot")
     p.add_argument("--plot", default=None, metavar="PATH", help="write the run as PNG")
+    p.add_argument("--animate", default=None, metavar="PATH",
+                   help="write an animation of the run: .gif (Pillow) or .mp4 (needs ffmpeg)")
     p.set_defaults(func=cmd_run)
     p = sub.add_parser("step", help="one stride of a model from one apex with given controls")
     p.add_argument("--model", default="slip", choices=("slip", "bhop"))
@@ -132,9 +264,12 @@ def main(argv=None) -> int:
     _use_all_cores()
     try:
         args = build_parser().parse_args(argv)
+        _precheck(args)
+        if getattr(args, "distributed", False):
+            _init_distributed(args)
         return int(args.func(args) or 0)
     except InputError as err:
-        print(f"jaxhop: error: {err}", file=sys.stderr)
+        print(f"jaxhop: error: {' '.join(str(err).split(chr(10)))}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("jaxhop: interrupted", file=sys.stderr)
@@ -159,10 +294,12 @@ def _write_json(path, data):
 
 
 def _terrain_and_goal(args):
-    from ._terrain import load_terrain
+    from ._terrain import check_goal, load_terrain
 
     terrain = load_terrain(args.terrain)
     goal = _floats(args.goal, 3, "--goal") if args.goal is not None else None
+    if goal is not None:
+        goal = list(check_goal(terrain, goal, "--goal"))
     if goal is None and terrain.goal is None:
         raise InputError(f"terrain {terrain.name!r} has no default goal: pass --goal y,z,ydot")
     return terrain, goal
@@ -170,11 +307,12 @@ def _terrain_and_goal(args):
 
 def _plan(args, terrain, goal):
     from ._deploy import PICKBEST
-    from ._plan import build_plan, get_plan
+    from ._plan import build_plan, get_plan, templates_for
 
+    templates = templates_for(getattr(args, "model", "bhop"))
     if args.pickbest != "robust" or args.no_cache:
-        return build_plan(terrain, goal, pickbest=PICKBEST[args.pickbest])
-    return get_plan(terrain, goal, log=_log)
+        return build_plan(terrain, goal, templates, pickbest=PICKBEST[args.pickbest])
+    return get_plan(terrain, goal, templates, log=_log)
 
 
 def _perceived(terrain, seed: int):
@@ -196,10 +334,8 @@ def _setting(args):
     from ._params import disturbance_for
 
     seed = _seed(args.seed)
-    max_steps = int(_positive(args.max_steps, "--max-steps"))
-    if max_steps > 10_000:
-        raise InputError("--max-steps: at most 10000")
-    tol = _floats(args.tolerance, 3, "--tolerance")
+    max_steps = _count(args.max_steps, "--max-steps", 10_000)
+    tol = _bounded(_floats(args.tolerance, 3, "--tolerance"), "--tolerance", 100.0)
     if min(tol) < 0:
         raise InputError("--tolerance: must be non-negative")
     return seed, max_steps, tol, disturbance_for(args.noise), jax.random.key(seed)
@@ -231,6 +367,7 @@ def cmd_plan(args) -> int:
 
 
 def cmd_sweep(args) -> int:
+    _check_sweep_args(args)
     dy, dz = _positive(args.dy, "--dy"), _positive(args.dz, "--dz")
     args.chunk_size = int(_positive(args.chunk, "--chunk")) if args.chunk is not None else None
     if args.checkpoint is not None:
@@ -246,7 +383,8 @@ def cmd_sweep(args) -> int:
     out, initial, result = sweep(plan, key=key, true_terrain=terrain, disturbance=disturbance,
                                  ydot0=ydot0, dy=dy, dz=dz, max_steps=max_steps,
                                  tolerance=tol, chunk=args.chunk_size,
-                                 checkpoint=args.checkpoint, progress=True)
+                                 checkpoint=args.checkpoint, model=args.model,
+                                 progress=True)
     out.update({"terrain": terrain.name, "model": args.model, "noise": args.noise,
                 "seed": seed})
     fails = ", ".join(f"{k} {v}" for k, v in out["failures"].items() if v) or "none"
@@ -271,6 +409,15 @@ def cmd_run(args) -> int:
     from ._flight import RESULT_NAMES
 
     apex = _floats(args.apex, 3, "--apex")
+    if args.animate:
+        from ._plot import animation_writer
+
+        try:  # a bad name or a missing encoder fails before any work
+            animation_writer(args.animate, 25)
+        except InputError as err:
+            raise InputError(f"--animate: {err}") from None
+        if not os.path.isdir(os.path.dirname(os.path.abspath(args.animate))):
+            raise InputError(f"--animate: cannot write {args.animate!r} (no such folder)")
     terrain, plan, seed, max_steps, tol, disturbance, key = _prepare(args)
     r = run_batch(plan, np.asarray([apex]), key=key, true_terrain=terrain,
                   disturbance=disturbance, max_steps=max_steps, tolerance=np.asarray(tol),
@@ -287,8 +434,18 @@ def cmd_run(args) -> int:
         from ._plot import runs_figure
 
         fig = runs_figure(terrain, [{k: v[0] for k, v in r.items()}], plan.goal,
-                          perceived=plan.terrain if args.noise == "ground" else None)
+                          perceived=plan.terrain if args.noise == "ground" else None,
+                          model=args.model, wind=float(disturbance.wind))
         _save(fig, args.plot)
+    if args.animate:
+        from ._plot import animate_run
+
+        try:
+            animate_run(terrain, {k: v[0] for k, v in r.items()}, args.animate,
+                        goal=plan.goal, model=args.model, wind=float(disturbance.wind))
+        except OSError as err:
+            raise InputError(f"--animate: cannot write {args.animate} "
+                             f"({err.strerror or err})") from None
     _write_json(args.json, out)
     return 0
 
@@ -322,10 +479,12 @@ def cmd_step(args) -> int:
             raise InputError("--controls: stiffnesses kc and kd must be positive")
     elif u[2] <= -1:
         raise InputError(f"--controls: k must be > -1, got {u[2]}")
+    _bounded(apex, "--apex", MAX_POSITION)
     if args.terrain is None:
         terrain = make_terrain([(apex[0] - 20.0, apex[0] + 20.0, 0.0)], name="flat-ground")
     else:
         terrain = load_terrain(args.terrain)
+    _check_step_args(args.model, apex, u, wind, terrain)
     hopper = Hopper()
     if args.model == "slip":
         from ._slip import slip_stride as stride_fn

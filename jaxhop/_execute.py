@@ -1,7 +1,8 @@
 """Reactive execution (Fig. 8), disturbances (section VI-C) and domain-of-attraction sweeps.
 
 `run_one` handles one initial apex; `run_batch` vmaps it and splits the batch over the
-visible JAX devices (one chunk per device, dispatched asynchronously).
+visible JAX devices (one chunk per device, dispatched asynchronously). Under `jax.distributed`
+each process runs its share of the chunks (`process_chunks`) and the results are gathered.
 """
 
 from __future__ import annotations
@@ -82,20 +83,67 @@ def decide(apex, tables: PlanTables, hopper: Hopper, model: str = "bhop"):
     Returns:
         `(found, u, instantiated)`.
     """
+    if model == "slip":
+        return decide_slip(apex, tables, hopper)
     found, s, a = first_match(apex, tables, hopper)
     nt = tables.templates.n
     h = tables.table.centre[s // nt, 1]
-    if model == "slip":
-        from ._slip_deadbeat import deadbeat_slip
-
-        u, _ = deadbeat_slip(apex, tables.goals[a], h, hopper)
-        return found, u, a
     tmpl = tables.templates.row(s % nt)
     u = deadbeat_bhop(apex, tables.goals[a], h, hopper)
     lo = jnp.stack([tmpl.dy_lo, tmpl.th_lo, tmpl.k_lo])
     hi = jnp.stack([tmpl.dy_hi, tmpl.th_hi, tmpl.k_hi])
     u = jnp.where(jnp.isfinite(u), u, hi)
     return found, jnp.clip(u, lo, hi), a
+
+
+# SLIP decisions (docs/decisions.md, "SLIP on BHop plans"): the deadbeat is tried on the
+# first SLIP_CANDIDATES matching policies in deployment order; the first whose predicted
+# apex lands within SLIP_ACCEPT of its goal wins, else the smallest scaled miss.
+SLIP_CANDIDATES = 2
+SLIP_ACCEPT = (0.05, 0.05, 0.05)
+
+
+def decide_slip(apex, tables: PlanTables, hopper: Hopper, n_candidates: int = SLIP_CANDIDATES):
+    """SLIP controls for one measured apex: the deadbeat on the best SLIP-reachable match.
+
+    The BHop plan's domains and goals ignore what the SLIP stance cannot do (the paper's
+    eqs 35-37 only approximate it), so the goal of the first match may be out of one SLIP
+    stride's reach (e.g. stopping at the global goal from a foothold a few cm off). The
+    controller runs the SLIP deadbeat (eqs 12-16) for the `n_candidates` highest-priority
+    matching policies, predicts each stride over the policy's foothold height, and takes the
+    first in deployment order whose prediction lies within `SLIP_ACCEPT` of its goal; when
+    none does, the one with the smallest miss relative to `SLIP_ACCEPT`.
+
+    Returns:
+        `(found, u, instantiated)`.
+    """
+    from ._slip import slip_apex_map
+    from ._slip_deadbeat import SEARCH_TOL, deadbeat_slip
+
+    ids, inside = candidate_situated(apex, tables.table, tables.templates, tables.terrain,
+                                     hopper)
+    big = jnp.iinfo(jnp.int32).max
+    pos = jnp.where(inside, tables.best_pos[ids], big)
+    neg, k = jax.lax.top_k(-pos, n_candidates)
+    valid = -neg < big
+    sit = ids[k]
+    inst = tables.best_inst[sit]
+    goals = tables.goals[inst]
+    h = tables.table.centre[sit // tables.templates.n, 1]
+
+    def one(goal, h_):
+        u, ok = deadbeat_slip(apex, goal, h_, hopper)
+        pred, code = slip_apex_map(apex, u, h_, hopper, SEARCH_TOL)
+        miss = jnp.max(jnp.abs(pred - goal) / jnp.asarray(SLIP_ACCEPT))
+        return u, jnp.where((code == OK) & jnp.all(jnp.isfinite(pred)), miss, jnp.inf)
+
+    u, miss = jax.vmap(one)(goals, h)
+    miss = jnp.where(valid, miss, jnp.inf)
+    good = miss <= 1.0
+    pick = jnp.where(jnp.any(good), jnp.argmax(good), jnp.argmin(miss))
+    # No candidate at all (outside every domain) or no completed stride: the first match.
+    pick = jnp.where(jnp.isfinite(miss[pick]), pick, 0)
+    return valid[0], u[pick], inst[pick]
 
 
 def stride(apex, u, terrain: Terrain, hopper: Hopper, wind=0.0, model: str = "bhop"):
@@ -216,7 +264,7 @@ def run_batch(plan: Plan, apex0, *, key=None, true_terrain: Terrain | None = Non
     config = RunConfig(goal=jnp.asarray(plan.goal if goal is None else goal, float),
                        tolerance=jnp.full(3, 0.05) if tolerance is None
                        else jnp.asarray(tolerance, float), max_steps=max_steps, model=model)
-    devices = jax.devices()
+    devices = jax.local_devices()
     if chunk is None:
         chunk = CHUNK if n >= CHUNK else 1 << (max(n, 1) - 1).bit_length()
     store = None
@@ -224,7 +272,10 @@ def run_batch(plan: Plan, apex0, *, key=None, true_terrain: Terrain | None = Non
         store = _ChunkStore(checkpoint, _fingerprint(plan, apex0, key, true_terrain,
                                                      disturbance, config, chunk))
     pending = []
+    mine = process_chunks(-(-n // chunk))
     for i, start in enumerate(range(0, n, chunk)):
+        if i not in mine:
+            continue  # another process's chunk (jax.distributed)
         stop = min(start + chunk, n)
         done = store.load(start, stop) if store else None
         if done is not None:
@@ -246,7 +297,52 @@ def run_batch(plan: Plan, apex0, *, key=None, true_terrain: Terrain | None = Non
             parts[name].append(arr)
         bar.update(stop - start)
     bar.close()
-    return {k: np.concatenate(v) for k, v in parts.items()}
+    return _combine(parts, [(a, b) for a, b, _ in pending], n, lambda: jax.eval_shape(
+        _batch, jnp.zeros((1, 3)), keys[:1], tables, true_terrain, plan.hopper, disturbance,
+        config))
+
+
+def _process_info() -> tuple[int, int]:
+    """`(jax.process_index(), jax.process_count())`: a seam for tests."""
+    return jax.process_index(), jax.process_count()
+
+
+def process_chunks(n_chunks: int) -> range:
+    """The chunks of a batch this process runs: its contiguous share, by process index.
+
+    One process (the usual case) runs them all. Under `jax.distributed`, process `p` of `P`
+    runs chunks `[n_chunks p // P, n_chunks (p + 1) // P)`: the shares are disjoint, cover
+    every chunk and differ in size by at most one.
+    """
+    index, count = _process_info()
+    return range(n_chunks * index // count, n_chunks * (index + 1) // count)
+
+
+def _allgather(tree: dict) -> dict:
+    from jax.experimental import multihost_utils
+
+    return {k: np.asarray(v) for k, v in multihost_utils.process_allgather(tree).items()}
+
+
+def _combine(parts: dict, spans: list, n: int, template) -> dict:
+    """The whole batch from this process's chunks (`spans`) and, under `jax.distributed`,
+    every other process's, gathered with `process_allgather`; `template()` gives the
+    field shapes for a process that ran no chunk."""
+    if _process_info()[1] == 1:
+        return {k: np.concatenate(v) for k, v in parts.items()}
+    like = ({k: v[0] for k, v in parts.items()} if spans
+            else dict(zip(RUN_FIELDS, template())))
+    full = {k: np.zeros((n,) + tuple(like[k].shape[1:]), like[k].dtype) for k in RUN_FIELDS}
+    owned = np.zeros(n, np.int32)
+    for j, (start, stop) in enumerate(spans):
+        owned[start:stop] = 1
+        for k in RUN_FIELDS:
+            full[k][start:stop] = parts[k][j]
+    every = _allgather({"owned": owned, **full})
+    if not np.all(every["owned"].sum(axis=0) == 1):
+        raise RuntimeError("jax.distributed: the processes' chunks do not cover the batch")
+    owner = np.argmax(every["owned"], axis=0)
+    return {k: every[k][owner, np.arange(n)] for k in RUN_FIELDS}
 
 
 RUN_FIELDS = ("code", "steps", "apexes", "footholds", "policies")

@@ -10,6 +10,7 @@ import sys
 import time
 import warnings
 import zipfile
+from functools import partial
 
 import equinox as eqx
 import jax
@@ -166,8 +167,35 @@ def _robustness(goals, table, templates, terrain, hopper, half_width):
 _robustness_jit = jax.jit(_robustness)
 
 
-def _chunks(n, size):
-    return range(0, n, size)
+def _map_chunks(fn, n, size, batched, consts, bar=None):
+    """`fn(*batched_chunk, *consts)` over `n` items in padded chunks of `size`, all devices.
+
+    Every chunk has the same shape (the last is padded by repeating the last item), so one
+    compilation serves the whole plan. Chunks go to the local devices round-robin and are
+    dispatched before any result is read, so each device works on its share at once (on a
+    CPU, one device uses about one core; see `_cli._use_all_cores`).
+
+    Returns:
+        The outputs concatenated over items, as NumPy arrays (a tuple if `fn` returns one).
+    """
+    devices = jax.local_devices()
+    on_device = {}
+    pending = []
+    for i, start in enumerate(range(0, n, size)):
+        dev = devices[i % len(devices)]
+        if dev not in on_device:
+            on_device[dev] = jax.device_put(consts, dev)
+        idx = np.arange(start, start + size).clip(max=max(n - 1, 0))
+        args = [jax.device_put(np.asarray(a)[idx], dev) for a in batched]
+        pending.append((min(size, n - start), fn(*args, *on_device[dev])))
+    parts = []
+    for count, out in pending:
+        parts.append(jax.tree.map(lambda x, c=count: np.asarray(x)[:c], out))
+        if bar is not None:
+            bar.update(count)
+    if not parts:
+        raise ValueError("_map_chunks: nothing to map")
+    return jax.tree.map(lambda *xs: np.concatenate(xs), *parts)
 
 
 def build_plan(
@@ -230,34 +258,22 @@ def build_plan(
     lap("boxes")
     n_pairs = rows.size
     # Screen: drop pairs empty even before the collision clauses (most of them).
-    keep = np.zeros(n_pairs, bool)
-    for start in _chunks(n_pairs, 4 * _PAIR_CHUNK):
-        stop = min(start + 4 * _PAIR_CHUNK, n_pairs)
-        idx = np.arange(start, start + 4 * _PAIR_CHUNK).clip(max=n_pairs - 1)
-        out = _screen_batch_jit(
-            jnp.asarray(t_of[rows[idx]]), jnp.asarray(s_of[rows[idx]]),
-            jnp.asarray(t_of[cols[idx]]), jnp.asarray(s_of[cols[idx]]),
-            jnp.asarray(boxes[idx]), table, templates, hopper, grid)
-        keep[start:stop] = np.asarray(out)[: stop - start]
+    pair_args = (t_of[rows], s_of[rows], t_of[cols], s_of[cols], boxes)
+    keep = _map_chunks(partial(_screen_batch_jit, grid=grid), n_pairs, 4 * _PAIR_CHUNK,
+                       pair_args, (table, templates, hopper)) if n_pairs else np.zeros(0, bool)
     rows, cols, boxes = rows[keep], cols[keep], boxes[keep]
     n_screened = rows.size
     lap("screen")
-    found = np.zeros(n_screened, bool)
-    goals = np.zeros((n_screened, 3))
-    margin = np.zeros(n_screened)
-    margin_d = np.zeros(n_screened)
     bar = tqdm(total=n_screened, desc="instantiate", unit="pair", disable=not progress,
                file=sys.stderr, leave=False)
-    for start in _chunks(n_screened, _PAIR_CHUNK):
-        stop = min(start + _PAIR_CHUNK, n_screened)
-        idx = np.arange(start, start + _PAIR_CHUNK).clip(max=max(n_screened - 1, 0))
-        out = _pair_batch_jit(
-            jnp.asarray(t_of[rows[idx]]), jnp.asarray(s_of[rows[idx]]),
-            jnp.asarray(t_of[cols[idx]]), jnp.asarray(s_of[cols[idx]]),
-            jnp.asarray(boxes[idx]), table, templates, terrain, hopper, grid)
-        out = [np.asarray(o)[: stop - start] for o in out]
-        found[start:stop], goals[start:stop], margin[start:stop], margin_d[start:stop] = out
-        bar.update(stop - start)
+    if n_screened:
+        found, goals, margin, margin_d = _map_chunks(
+            partial(_pair_batch_jit, grid=grid), n_screened, _PAIR_CHUNK,
+            (t_of[rows], s_of[rows], t_of[cols], s_of[cols], boxes),
+            (table, templates, terrain, hopper), bar)
+    else:
+        found, goals = np.zeros(0, bool), np.zeros((0, 3))
+        margin, margin_d = np.zeros(0), np.zeros(0)
     bar.close()
     lap("instantiate")
 
@@ -274,16 +290,12 @@ def build_plan(
     safety = SAFETY_WE * de[s_of[sit]] ** 3 + SAFETY_WG * dg
     is_goal = np.arange(sit.size) < goal_sit.size
 
-    ids = np.zeros((sit.size, 3 * nt), np.int64)
-    inside = np.zeros((sit.size, 3 * nt), bool)
     chunk = 8192
-    for start in _chunks(sit.size, chunk):
-        idx = np.arange(start, start + chunk).clip(max=max(sit.size - 1, 0))
-        i_, m_ = _situated_batch_jit(jnp.asarray(all_goals[idx]), table, templates, terrain,
-                                     hopper)
-        stop = min(start + chunk, sit.size)
-        ids[start:stop] = np.asarray(i_)[: stop - start]
-        inside[start:stop] = np.asarray(m_)[: stop - start]
+    if sit.size:
+        ids, inside = _map_chunks(_situated_batch_jit, sit.size, chunk, (all_goals,),
+                                  (table, templates, terrain, hopper))
+    else:  # the goal is out of every policy's reach: an empty plan
+        ids, inside = np.zeros((0, 3 * nt), np.int64), np.zeros((0, 3 * nt), bool)
     p = situated_matrix(inside, ids, n_sit)
     lap("prepares")
     # Each goal must lie in the domain it was chosen for; drop any that do not (none should).
@@ -297,12 +309,10 @@ def build_plan(
         safety, is_goal, p = safety[sel], is_goal[sel], p[sel]
 
     robustness = np.ones(sit.size)
-    for start in _chunks(sit.size, chunk):
-        idx = np.arange(start, start + chunk).clip(max=max(sit.size - 1, 0))
-        stop = min(start + chunk, sit.size)
-        r = _robustness_jit(jnp.asarray(all_goals[idx]), table, templates, terrain, hopper,
-                            jnp.full(3, float(probe)))
-        robustness[start:stop] = np.asarray(r)[: stop - start]
+    if sit.size:
+        robustness = np.asarray(_map_chunks(
+            _robustness_jit, sit.size, chunk, (all_goals,),
+            (table, templates, terrain, hopper, jnp.full(3, float(probe)))), float)
     robustness[is_goal] = 1.0
     lap("safety_sampling")
     order = deploy(p, sit, safety, is_goal, robustness, pickbest)
@@ -322,6 +332,14 @@ def build_plan(
     }
     return Plan(terrain, templates, hopper, np.asarray(goal, float), sit, tgt, all_goals,
                 safety, all_margin, is_goal, robustness, p.tocsr(), order, stats)
+
+
+def templates_for(model: str = "bhop") -> Templates:
+    """The templates a plan for `model` uses: eq 33's, with the SLIP adjustments for SLIP."""
+    if model not in ("bhop", "slip"):
+        raise InputError(f"model: expected 'bhop' or 'slip', got {model!r}")
+    base = paper_templates()
+    return base.for_slip() if model == "slip" else base
 
 
 def _check_goal(goal_or_terrain) -> np.ndarray:

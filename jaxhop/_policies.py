@@ -26,6 +26,7 @@ from ._params import Hopper
 from ._regions import (
     domain_height_bounds,
     feasible_goal_contains,
+    foot_lead,
     goal_height_bounds,
     goal_position_bounds,
     template_domain_contains,
@@ -71,15 +72,18 @@ def candidate_situated(apex, table: SituatedTable, templates: Templates, terrain
                        hopper: Hopper):
     """Situated policies whose (collision-free) domain contains `apex`.
 
-    The nominal descent of the foot (straight below the COM) on `terrain` gives the first
-    touchdown. A situated policy's domain contains the apex iff that touchdown is on its
-    segment and the template's velocity and energy ranges hold relative to its height.
+    The nominal descent of the foot (straight below the COM; for SLIP-adjusted templates
+    `Y` of eq 37 ahead of it) on `terrain` gives the first touchdown. A situated policy's
+    domain contains the apex iff that touchdown is on its segment and the template's
+    velocity and energy ranges hold relative to its height.
 
     Returns:
         `(ids, mask)`: `(3 * n_templates,)` situated ids near the touchdown and which of them
         contain the apex.
     """
-    code, block, _, y_foot, _ = touchdown(apex, jnp.array([0.0, -hopper.rho0]), terrain, hopper)
+    lead = foot_lead(apex[2], templates)
+    code, block, _, y_foot, _ = touchdown(apex, jnp.stack([lead, -hopper.rho0]), terrain,
+                                          hopper)
     seg_len = templates.seg_length
     k = jnp.floor((y_foot - table.block_left[block]) / seg_len).astype(jnp.int32)
     n_on = table.block_count[block]
@@ -131,6 +135,7 @@ def template_boxes(templates: Templates, hopper: Hopper, n_grid: int = 2001):
         dz_hi = (tmpl.e_hi - 0.5 * hopper.m * vmin2) / mg
         shift = jnp.array([dvl, dvh])[:, None] * safe_sqrt(
             2.0 * jnp.array([dz_lo, dz_hi]) / hopper.g)[None, :]
+        shift = shift + foot_lead(jnp.array([dvl, dvh]), tmpl)[:, None]
         l = tmpl.half_length
         d = jnp.array([[-l - jnp.max(shift), l - jnp.min(shift)], [dz_lo, dz_hi], [dvl, dvh]])
         return gf, d
@@ -154,20 +159,21 @@ def candidate_pairs(gf_world: np.ndarray, d_world: np.ndarray, chunk: int = 2048
 # --- collision-free y bounds ---------------------------------------------------------------
 
 
-def descent_y_bounds(ydot, z, block, terrain: Terrain, hopper: Hopper):
+def descent_y_bounds(ydot, z, block, terrain: Terrain, hopper: Hopper, lead=0.0):
     """Apex `y` interval from which the descending foot meets no block before `block`.
 
     For `ydot > 0` a higher block `b` left of the landing block is cleared iff the foot has
     passed its right end `e_b` when it falls to `H_b`: `y > e_b - ydot t_H`; mirrored for
-    `ydot < 0`. The apex must also lie over the map.
+    `ydot < 0`. The apex must also lie over the map. A foot `lead` ahead of the COM shifts
+    the first two bounds by `-lead` (SLIP-adjusted templates, eq 37).
     """
     h = terrain.heights[block]
     t_h = safe_sqrt(2.0 * (z - hopper.rho0 - terrain.heights) / hopper.g)
     higher = terrain.heights > h
     left = higher & (terrain.ends <= terrain.starts[block]) & (ydot > 0)
     right = higher & (terrain.starts >= terrain.ends[block]) & (ydot < 0)
-    lo = jnp.max(jnp.where(left, terrain.ends - ydot * t_h, -jnp.inf))
-    hi = jnp.min(jnp.where(right, terrain.starts - ydot * t_h, jnp.inf))
+    lo = jnp.max(jnp.where(left, terrain.ends - ydot * t_h - lead, -jnp.inf))
+    hi = jnp.min(jnp.where(right, terrain.starts - ydot * t_h - lead, jnp.inf))
     return jnp.maximum(lo, terrain.starts[0]), jnp.minimum(hi, terrain.ends[-1])
 
 
@@ -241,7 +247,7 @@ def _pair_grid(ti, seg_i, tj, seg_j, box, table: SituatedTable, templates: Templ
     dzl = jnp.maximum(dzl, h_j + rho0 + 1e-6)
     V, Z = jnp.meshgrid(vs, zs, indexing="ij")
     g_lo, g_hi = goal_position_bounds(V, Z - h_i - rho0, tmpl_i, hopper)
-    shift_j = V * safe_sqrt(2.0 * (Z - h_j - rho0) / hopper.g)
+    shift_j = V * safe_sqrt(2.0 * (Z - h_j - rho0) / hopper.g) + foot_lead(V, tmpl_j)
     l = templates.half_length
     return {"V": V, "Z": Z, "dv": dv, "dz": dz, "gzl": gzl, "gzh": gzh, "dzl": dzl,
             "dzh": dzh, "g_lo": g_lo + py_i, "g_hi": g_hi + py_i,
@@ -282,8 +288,9 @@ def pair_goal(ti, seg_i, tj, seg_j, box, table: SituatedTable, templates: Templa
     b_i, b_j = table.seg_block[seg_i], table.seg_block[seg_j]
     zl = jnp.maximum(c["gzl"], dzl)[:, None]
     zh = jnp.minimum(c["gzh"], dzh)[:, None]
-    c_lo, c_hi = jax.vmap(jax.vmap(descent_y_bounds, (0, 0, None, None, None)),
-                          (0, 0, None, None, None))(V, Z, b_j, terrain, hopper)
+    c_lo, c_hi = jax.vmap(jax.vmap(descent_y_bounds, (0, 0, None, None, None, 0)),
+                          (0, 0, None, None, None, 0))(V, Z, b_j, terrain, hopper,
+                                                       foot_lead(V, tmpl_j))
     a_lo, a_hi = jax.vmap(jax.vmap(ascent_y_bounds, (0, 0, None, None, None)),
                           (0, 0, None, None, None))(V, Z, b_i, terrain, hopper)
     dom_lo, dom_hi = jnp.maximum(c["d_lo"], c_lo), jnp.minimum(c["d_hi"], c_hi)

@@ -24,11 +24,37 @@ from ._params import Hopper
 from ._templates import Templates
 
 
+def foot_lead(ydot, tmpl: Templates):
+    """How far ahead of the COM's touchdown point the planned foot lands (m).
+
+    0 for BHop; `Y` of eq 37 for templates adjusted for the SLIP model (`Templates.slip`).
+    """
+    return 0.0 * ydot if tmpl.slip is None else tmpl.slip.lead(ydot)
+
+
+def slip_shift_limits(ydot, tmpl: Templates):
+    """The horizontal-shift interval `dy` of `Gf` at goal velocity `ydot`.
+
+    BHop: the template's `[dy_lo, dy_hi]`. SLIP (eq 35): `[h(ydot_avg), -h(-ydot_avg)]` in
+    its place, `ydot_avg` the mean of the domain's and the goal's velocities; `h` is
+    increasing, so the limits that hold from every domain velocity are `h` at the domain's
+    `v_hi` and `-h(-.)` at its `v_lo`.
+    """
+    if tmpl.slip is None:
+        return tmpl.dy_lo, tmpl.dy_hi
+    lo = tmpl.slip.h(0.5 * (tmpl.v_hi + ydot))
+    hi = -tmpl.slip.h(-0.5 * (tmpl.v_lo + ydot))
+    return lo, hi
+
+
 def template_domain_contains(z_rel, tmpl: Templates, hopper: Hopper):
-    """`Z in D(Phi)` of eqs 38-41 (no collision clause), relative coordinates."""
+    """`Z in D(Phi)` of eqs 38-41 (no collision clause), relative coordinates.
+
+    For SLIP-adjusted templates the `y` range is shifted by `-Y` (eqs 36-37).
+    """
     y_rel, zr, ydot = z_rel
     energy = 0.5 * hopper.m * ydot**2 + hopper.m * hopper.g * zr
-    y_td = y_rel + ydot * safe_sqrt(2.0 * zr / hopper.g)
+    y_td = y_rel + ydot * safe_sqrt(2.0 * zr / hopper.g) + foot_lead(ydot, tmpl)
     l = tmpl.half_length
     return ((ydot >= tmpl.v_lo) & (ydot <= tmpl.v_hi) & (zr > 0) & (energy >= tmpl.e_lo)
             & (energy <= tmpl.e_hi) & (y_td >= -l) & (y_td <= l))
@@ -82,10 +108,11 @@ def goal_velocity_ok(v_star, tmpl: Templates, hopper: Hopper):
 
 
 def goal_position_bounds(ydot, zr, tmpl: Templates, hopper: Hopper):
-    """`y_rel` interval of `Gf` at `(ydot, zr)` (eqs 49-50)."""
+    """`y_rel` interval of `Gf` at `(ydot, zr)` (eqs 49-50; eq 35 for SLIP templates)."""
     shift = ydot * safe_sqrt(2.0 * zr / hopper.g)
     l = tmpl.half_length
-    return shift + l + tmpl.dy_lo, shift - l + tmpl.dy_hi
+    dy_lo, dy_hi = slip_shift_limits(ydot, tmpl)
+    return shift + l + dy_lo, shift - l + dy_hi
 
 
 def feasible_goal_contains(z_rel, tmpl: Templates, hopper: Hopper):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
 
@@ -13,6 +14,48 @@ from ._errors import InputError
 from ._terrain import SEGMENT_LENGTH
 
 _FIELDS = ("v_lo", "v_hi", "e_lo", "e_hi", "dy_lo", "dy_hi", "th_lo", "th_hi", "k_lo", "k_hi")
+
+
+@dataclasses.dataclass(frozen=True)
+class SlipAdjust:
+    """SLIP adjustments of BHop templates (section VII-A, eqs 35-37; SPEC section 5).
+
+    `h(v) = cm (atan(c (v + co)) / pi - cs)` with `c = ca` for `v < co`, `cb` otherwise;
+    the horizontal shift of a stride is limited to `[h(ydot_avg), -h(-ydot_avg)]` (eq 35),
+    which replaces the template's own `dy` range. The printed eq 35 has `cs = 1 - co`; with
+    the printed constants (`SlipAdjust.printed()`) the limits are about `[-1.5, -0.7]` and
+    `[0.7, 1.5]` m, which no template range ever meets, so the defaults are refitted to
+    SLIP strides (docs/decisions.md, "SLIP on BHop plans"; `docs/slip_shift_fit.py`).
+
+    Attributes:
+        theta_avg: average touchdown angle at full speed (rad): the foot lands
+            `Y = ydot sin(theta_avg) / v_max` ahead of where the BHop foot would (eq 37),
+            which shifts every domain's `y` range by `-Y` (eq 36).
+        v_max: `|ydot_max|` of eq 37, the largest template speed (m/s).
+        cm, ca, cb, co, cs: the constants of `h`.
+    """
+
+    theta_avg: float = 0.2
+    v_max: float = 2.5
+    cm: float = 0.659
+    ca: float = 2.018
+    cb: float = 2.018
+    co: float = -1.149
+    cs: float = 0.2252
+
+    @classmethod
+    def printed(cls, **kwargs) -> SlipAdjust:
+        """The constants as printed in the paper (`Cm = 1.11, Ca = 1, Cb = 10, Co = -0.1`)."""
+        return cls(cm=1.11, ca=1.0, cb=10.0, co=-0.1, cs=1.1, **kwargs)
+
+    def lead(self, ydot):
+        """`Y` of eq 37: how far ahead of the BHop foot the SLIP foot lands (m)."""
+        return ydot * math.sin(self.theta_avg) / abs(self.v_max)
+
+    def h(self, v):
+        """`h(v)` of eq 35 (m)."""
+        c = jnp.where(v < self.co, self.ca, self.cb)
+        return self.cm * (jnp.arctan(c * (v + self.co)) / jnp.pi - self.cs)
 
 
 class Templates(eqx.Module):
@@ -36,6 +79,7 @@ class Templates(eqx.Module):
     k_lo: jnp.ndarray
     k_hi: jnp.ndarray
     seg_length: float = eqx.field(static=True, default=SEGMENT_LENGTH)
+    slip: SlipAdjust | None = eqx.field(static=True, default=None)
 
     @property
     def n(self) -> int:
@@ -47,14 +91,26 @@ class Templates(eqx.Module):
 
     def row(self, i: int) -> Templates:
         """Template `i` alone (scalar leaves), for functions written for one template."""
-        return Templates(*(getattr(self, f)[i] for f in _FIELDS), seg_length=self.seg_length)
+        return Templates(*(getattr(self, f)[i] for f in _FIELDS), seg_length=self.seg_length,
+                         slip=self.slip)
+
+    def for_slip(self, adjust: SlipAdjust | None = None) -> Templates:
+        """The same templates with the SLIP adjustments of section VII-A (eqs 35-37)."""
+        if adjust is None:
+            adjust = SlipAdjust(v_max=float(np.max(np.abs(np.asarray(
+                jnp.concatenate([self.v_lo, self.v_hi]))))))
+        return Templates(*(getattr(self, f) for f in _FIELDS), seg_length=self.seg_length,
+                         slip=adjust)
 
     def as_array(self) -> np.ndarray:
         return np.stack([np.asarray(getattr(self, f)) for f in _FIELDS], axis=1)
 
     def to_dict(self) -> dict:
-        return {"seg_length": self.seg_length,
-                "templates": [dict(zip(_FIELDS, map(float, r))) for r in self.as_array()]}
+        out = {"seg_length": self.seg_length,
+               "templates": [dict(zip(_FIELDS, map(float, r))) for r in self.as_array()]}
+        if self.slip is not None:
+            out["slip"] = dataclasses.asdict(self.slip)
+        return out
 
 
 def make_templates(rows, seg_length: float = SEGMENT_LENGTH) -> Templates:
@@ -99,3 +155,87 @@ def paper_templates(seg_length: float = SEGMENT_LENGTH) -> Templates:
             dy, th = (0.0, 0.25), (-math.pi / 3, math.pi / 2)
         rows.append((v_lo, v_hi, e_lo, e_hi, *dy, *th, 0.7, 1.4))
     return make_templates(rows, seg_length)
+
+
+# --- size-independent (Froude-scaled) templates -------------------------------------------
+
+#: The hopper the paper's templates (eq 33) were written for: `m` (kg), `g` (m/s^2), `rho0` (m).
+REFERENCE_HOPPER = (80.0, 9.81, 1.0)
+
+
+def template_scales(hopper) -> dict:
+    """Froude scale factors of `hopper` against `REFERENCE_HOPPER`.
+
+    Lengths scale with `rho0`, speeds with `sqrt(g rho0)`, energies with `m g rho0`; angles
+    and the velocity gain `k` are dimensionless. Each factor is a ratio of the two hoppers'
+    scales, computed so that it is exactly `1.0` for the reference hopper.
+
+    Returns:
+        `{"length", "velocity", "energy"}` as Python floats.
+    """
+    m0, g0, l0 = REFERENCE_HOPPER
+    m, g, l = float(hopper.m), float(hopper.g), float(hopper.rho0)
+    length = l / l0
+    return {"length": length, "velocity": math.sqrt((g / g0) * length),
+            "energy": (m / m0) * (g / g0) * length}
+
+
+def dimensionless_templates(templates: Templates | None = None) -> np.ndarray:
+    """Template rows in Froude units of the reference hopper.
+
+    Velocities over `sqrt(g rho0)`, energies over `m g rho0`, `dy` over `rho0`; angles and
+    `k` unchanged. Columns as `make_templates`, then the segment length over `rho0` as an
+    eleventh column.
+    """
+    templates = paper_templates() if templates is None else templates
+    m0, g0, l0 = REFERENCE_HOPPER
+    arr = templates.as_array().copy()
+    arr[:, 0:2] /= math.sqrt(g0 * l0)
+    arr[:, 2:4] /= m0 * g0 * l0
+    arr[:, 4:6] /= l0
+    seg = np.full((arr.shape[0], 1), templates.seg_length / l0)
+    return np.concatenate([arr, seg], axis=1)
+
+
+def scaled_templates(hopper, extra_energy=(), base: Templates | None = None) -> Templates:
+    """The paper's templates (or `base`) for a hopper of any size, by Froude scaling.
+
+    Energy and velocity ranges, the horizontal-shift limits `dy` and the segment length are
+    the reference values (written for `REFERENCE_HOPPER`, 80 kg, 9.81 m/s^2, 1 m) times the
+    ratio of the two hoppers' scales (`template_scales`); angles and `k` are unchanged. For
+    the reference hopper every factor is exactly 1.0, so the result equals
+    `paper_templates()` bit for bit.
+
+    Arguments:
+        hopper: anything with `m`, `g`, `rho0`.
+        extra_energy: additional dimensionless energy bands `(e_lo, e_hi)` in units of
+            `m g rho0`, each added for every velocity band of the base set (with that
+            band's control limits); e.g. for a robot that can jump higher, relative to its
+            leg, than the paper's hopper (top band 1120 J = 1.43 m g rho0).
+        base: templates to scale (default `paper_templates()`).
+
+    Raises:
+        InputError: a band that is not finite, not positive or empty.
+    """
+    base = paper_templates() if base is None else base
+    f = template_scales(hopper)
+    arr = base.as_array().copy()
+    rows = [arr]
+    if len(extra_energy):
+        m0, g0, l0 = REFERENCE_HOPPER
+        bands = np.asarray(extra_energy, dtype=float).reshape(-1, 2)
+        if not np.all(np.isfinite(bands)) or np.any(bands[:, 0] < 0) or np.any(
+                bands[:, 1] <= bands[:, 0]):
+            raise InputError(f"extra_energy: bands must be finite with 0 <= lo < hi, got "
+                             f"{bands.tolist()}")
+        vel = np.unique(arr[:, [0, 1, 4, 5, 6, 7, 8, 9]], axis=0)
+        for lo, hi in bands:
+            extra = np.zeros((vel.shape[0], arr.shape[1]))
+            extra[:, [0, 1, 4, 5, 6, 7, 8, 9]] = vel
+            extra[:, 2], extra[:, 3] = lo * m0 * g0 * l0, hi * m0 * g0 * l0
+            rows.append(extra)
+    arr = np.concatenate(rows)
+    arr[:, 0:2] *= f["velocity"]
+    arr[:, 2:4] *= f["energy"]
+    arr[:, 4:6] *= f["length"]
+    return make_templates(arr, base.seg_length * f["length"])
