@@ -95,33 +95,16 @@ def _c2(nxt, code, goal):
 
 
 def _inner_th(apex, goal, h, kc, hopper, tol):
-    """Touchdown angle whose stride (with eq 12's kd) reaches the goal velocity (eqs 13-14).
-
-    The liftoff speed decreases with `th_td` only from its maximum on (Fig. 5): with the leg
-    far behind the body the stance still completes but the speed rises again with `th_td`.
-    So a golden search first finds the angle of the largest completed-stance speed, and the
-    bisection runs on the decreasing side `[th_max, TH_HI]` only. A goal speed above that
-    maximum ends at `th_max`, the closest the stride can come.
-    """
-    def speed(th):
-        return _trial(apex, goal, h, th, kc, hopper, tol)[3]
-
-    def completed_speed(th):
-        v = speed(th)
-        return jnp.where(jnp.abs(v) < _FAIL_SPEED, v, -_FAIL_SPEED)
-
-    th_max = golden_minimise(lambda th: -completed_speed(th), TH_LO, TH_HI, atol=1e-6,
-                             max_steps=48)
-
+    """Touchdown angle whose stride (with eq 12's kd) reaches the goal velocity (eqs 13-14)."""
     def speed_error(th, _):
-        return speed(th) - goal[2]
+        return _trial(apex, goal, h, th, kc, hopper, tol)[3] - goal[2]
 
     # flip=True: the error decreases with th; explicit, so no extra evaluations at the ends.
     # Bisection stops when both the bracket (rad) and |error| (m/s) are below atol; the
     # trial strides are only good to ~1e-8, so a smaller atol just runs to max_steps.
     solver = optx.Bisection(rtol=0.0, atol=1e-7, flip=True)
-    sol = optx.root_find(speed_error, solver, 0.5 * (th_max + TH_HI),
-                         options=dict(lower=th_max, upper=TH_HI), max_steps=64, throw=False)
+    sol = optx.root_find(speed_error, solver, jnp.zeros(()), options=dict(lower=TH_LO,
+                         upper=TH_HI), max_steps=64, throw=False)
     return sol.value
 
 
