@@ -9,6 +9,9 @@ from .._errors import InputError
 from ._course import list_courses, load_course
 from ._plan import MPPC, Settings, run_course
 
+MIN_GRID = 0.001  # m
+MAX_GRID_POINTS = 100_000  # landing grid points over a course
+
 
 def add_parser(subparsers):
     """Add `parkour` to an argparse subparsers object; it sets `func=run`.
@@ -27,7 +30,15 @@ def add_parser(subparsers):
     )
     p.add_argument("--course", required=True, metavar="NAME|FILE",
                    help="a shipped course name or a course JSON file")
-    p.add_argument("--planner", default="mppc", choices=["mppc"], help="planner (mppc)")
+    p.add_argument("--planner", default="mppc", choices=["mppc", "reactive"],
+                   help="mppc, or reactive: the 2012 reactive planner for the leg (issue 8)")
+    p.add_argument("--model", default="bhop", choices=["bhop", "slip"],
+                   help="reactive planner: the simulated model (default bhop)")
+    p.add_argument("--noise", default="none", choices=["none", "wind", "sensor", "landing"],
+                   help="disturbance (Froude-scaled; docs/parkour_reactive.md)")
+    p.add_argument("--seed", type=int, default=0, help="seed of initial states and noise")
+    p.add_argument("--runs", type=int, default=1,
+                   help="reactive planner: seeded runs (run 0 is reported in full)")
     p.add_argument("--final-snapshot", action="store_true",
                    help="plan the course's last snapshot as a fixed course")
     p.add_argument("--grid", type=float, default=Settings.grid,
@@ -49,15 +60,23 @@ def run(args) -> int:
 
     **Raises:** `InputError` for a bad course or option.
     """
-    if getattr(args, "planner", "mppc") != "mppc":
-        raise InputError(f"--planner: unknown planner {args.planner!r} (choices: mppc)")
+    if getattr(args, "planner", "mppc") not in ("mppc", "reactive"):
+        raise InputError(f"--planner: unknown planner {args.planner!r} (choices: mppc, "
+                         "reactive)")
     grid = getattr(args, "grid", Settings.grid)
-    if not (0 < grid <= 0.1):
-        raise InputError(f"--grid: must be in (0, 0.1] m, got {grid!r}")
+    if not (MIN_GRID <= grid <= 0.1):
+        raise InputError(f"--grid: must be in [{MIN_GRID:g}, 0.1] m, got {grid!r}")
     course = load_course(args.course)
     if getattr(args, "final_snapshot", False):
         course = course.final()
+    if getattr(args, "planner", "mppc") == "reactive" or getattr(args, "noise", "none") != "none":
+        from ..parkour._cli import run_parkour
+
+        return run_parkour(args, course, _write)
     span = course.goal - course.start
+    if span / grid > MAX_GRID_POINTS:
+        raise InputError(f"--grid: {grid:g} m gives {span / grid:.0f} landing points on "
+                         f"this course, at most {MAX_GRID_POINTS} allowed")
     with tqdm(total=round(span, 2), unit="m", desc=course.name, disable=None, leave=False,
               bar_format="{l_bar}{bar}| {n:.2f}/{total:.2f} m") as bar:
         result = run_course(course, MPPC(settings=Settings(grid=grid)),

@@ -1,0 +1,274 @@
+"""Reactive planner (BHop, SLIP) against jaxhop's MPPC on the parkour courses (issue 8).
+
+For every course: the reactive plan for the MPPC leg (`jaxhop.parkour`), its incremental
+updates at the snapshots (optionally timed against full rebuilds), then seeded runs of
+both planners with no disturbance, wind, sensor noise and landing-position noise.
+
+    python benchmarks/parkour_compare.py --json parkour.json --markdown parkour.md
+    python benchmarks/parkour_compare.py --courses mppc-sim-1 --runs 8 --models bhop
+
+Reactive runs start from seeded apexes near the start that the plan covers (rejection
+sampling; `coverage` is the covered fraction of the sampling box). MPPC is deterministic
+without a disturbance (one run); with one, `--mppc-seeds` seeded runs. Success: the goal
+reached with no violation (restricted area, margin, collision). Times are wall-clock on
+the machine named in the output; `update` is the incremental plan update after a
+snapshot, `full` the full build of the course's first environment (and `rebuild` full
+rebuilds of snapshots, where asked).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import pickle
+import platform
+import sys
+import time
+
+import jax
+import numpy as np
+
+import jaxhop  # noqa: F401  (float64)
+from jaxhop.mppc import list_courses, load_course
+from jaxhop.parkour import leg_hopper, leg_templates, reactive_parkour
+from jaxhop.parkour._mppc_noise import run_mppc_noisy
+from jaxhop.parkour._run import course_plans
+
+NOISES = ("none", "wind", "sensor", "landing")
+
+
+def device_name() -> str:
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    cpu = line.split(":", 1)[1].strip()
+                    break
+    except OSError:
+        pass
+    devs = ", ".join(sorted({d.platform for d in jax.devices()}))
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    return (f"{cpu}, {os.cpu_count()} cores visible, JAX {jax.__version__} on {devs}, "
+            f"load average {load:.1f} at start")
+
+
+def _plans(course, hop, tm, rebuild, cache_dir, log):
+    path = None
+    if cache_dir:
+        os.makedirs(cache_dir, exist_ok=True)
+        path = os.path.join(cache_dir, f"{course.name}-r{rebuild}.pkl")
+        for r in (rebuild, 1, 0):  # any cached build of this course will do for timing
+            alt = os.path.join(cache_dir, f"{course.name}-r{r}.pkl")
+            if os.path.exists(alt) and (r == rebuild or rebuild == 0):
+                with open(alt, "rb") as f:
+                    return pickle.load(f)
+    cps = course_plans(course, hop, tm, rebuild=rebuild, log=log)
+    if path:
+        with open(path, "wb") as f:
+            pickle.dump(cps, f)
+    return cps
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--courses", default=",".join(list_courses()))
+    ap.add_argument("--noise", default=",".join(NOISES))
+    ap.add_argument("--models", default="bhop,slip")
+    ap.add_argument("--planners", default="reactive,mppc")
+    ap.add_argument("--runs", type=int, default=16, help="reactive BHop runs per setting")
+    ap.add_argument("--slip-runs", type=int, default=4, help="reactive SLIP runs per setting")
+    ap.add_argument("--slip-noise", default="none", help="disturbances for SLIP runs")
+    ap.add_argument("--mppc-seeds", type=int, default=8)
+    ap.add_argument("--rebuild", default="mppc-hw-dynamic-1,mppc-hw-disturbances",
+                    help="courses whose first snapshot is also rebuilt in full")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--cache", default=None, help="directory to keep built plans in")
+    ap.add_argument("--json")
+    ap.add_argument("--markdown")
+    ap.add_argument("--merge", nargs="+", metavar="JSON",
+                    help="only merge the JSON outputs of earlier runs into one table")
+    ap.add_argument("--timing", action="store_true",
+                    help="only time incremental updates against full rebuilds (warm)")
+    args = ap.parse_args(argv)
+    if args.timing:
+        return timing(args)
+    if args.merge:
+        parts = [json.load(open(p)) for p in args.merge]
+        out = {"device": parts[0]["device"], "rows": [], "plans": []}
+        seen = set()
+        for p in parts:
+            out["rows"] += p["rows"]
+            for q in p["plans"]:
+                if q["course"] not in seen:
+                    seen.add(q["course"])
+                    out["plans"].append(q)
+        if args.json:
+            with open(args.json, "w") as f:
+                json.dump(out, f, indent=1)
+        text = markdown(out)
+        if args.markdown:
+            with open(args.markdown, "w") as f:
+                f.write(text)
+        print(text)
+        return 0
+
+    def log(msg):
+        print(msg, file=sys.stderr, flush=True)
+
+    hop = leg_hopper()
+    tm = leg_templates(hop)
+    out = {"device": device_name(), "hopper": {"m": hop.m, "g": hop.g, "rho0": hop.rho0},
+           "n_templates": tm.n, "rows": [], "plans": []}
+    planners = args.planners.split(",")
+    for name in args.courses.split(","):
+        course = load_course(name)
+        if "reactive" in planners:
+            rebuild = 1 if (name in args.rebuild.split(",") and course.snapshots) else 0
+            t0 = time.perf_counter()
+            cps = _plans(course, hop, tm, rebuild, args.cache, log)
+            out["plans"].append({
+                "course": name, "n_snapshots": len(cps.plans) - 1,
+                "n_policies": [int(cp.stats["n_instantiated"]) for cp in cps.plans],
+                "full_s": cps.build_s, "update_s": cps.update_s,
+                "update_cpu_s": cps.update_cpu_s, "rebuild_s": cps.rebuild_s,
+                "rebuild_cpu_s": cps.rebuild_cpu_s, "rebuild_equal": cps.rebuild_equal,
+                "recomputed_pairs": [int(cp.stats["recomputed_pairs"]) for cp in cps.plans],
+                "stage_seconds": [cp.stats["stage_seconds"] for cp in cps.plans],
+                "seconds": time.perf_counter() - t0})
+            for model in args.models.split(","):
+                noises = args.noise.split(",") if model == "bhop" else args.slip_noise.split(",")
+                runs = args.runs if model == "bhop" else args.slip_runs
+                for noise in noises:
+                    if not noise:
+                        continue
+                    t0 = time.perf_counter()
+                    r = reactive_parkour(course, model=model, noise=noise, seed=args.seed,
+                                         runs=runs, hopper=hop, templates=tm, plans=cps)
+                    r.pop("executed")
+                    r["seconds"] = time.perf_counter() - t0
+                    out["rows"].append(r)
+                    log(f"{name} reactive/{model}/{noise}: success {r['success_rate']:.2f}, "
+                        f"{r['mean_jumps']} jumps, {r['seconds']:.0f} s")
+        if "mppc" in planners:
+            for noise in args.noise.split(","):
+                seeds = [0] if noise == "none" else range(args.mppc_seeds)
+                res = [run_mppc_noisy(course, noise, args.seed + s) for s in seeds]
+                ok = [r for r in res if r["success"]]
+                ms = np.concatenate([[r["replan_ms"]["median"]] for r in res
+                                     if r["replan_ms"]["median"] is not None])
+                out["rows"].append({
+                    "course": name, "planner": "mppc", "model": "leg", "noise": noise,
+                    "runs": len(res), "success_rate": len(ok) / len(res),
+                    "mean_jumps": float(np.mean([r["jumps"] for r in ok])) if ok else None,
+                    "mean_flight_time": (float(np.mean([r["flight_time"] for r in ok]))
+                                         if ok else None),
+                    "replan_ms": {"median": float(np.median(ms)) if ms.size else None,
+                                  "max": max(r["replan_ms"]["max"] or 0 for r in res)},
+                    "violations": int(sum(r["violations"] for r in res)),
+                    "failures": sorted({r["failure"] for r in res if r["failure"]}),
+                })
+                log(f"{name} mppc/{noise}: success {len(ok)}/{len(res)}")
+        if args.json:
+            with open(args.json, "w") as f:
+                json.dump(out, f, indent=1)
+    if args.markdown:
+        with open(args.markdown, "w") as f:
+            f.write(markdown(out))
+    print(markdown(out))
+    return 0
+
+
+def timing(args) -> int:
+    """Per dynamic course: the update chain (after an untimed warm-up chain, so that no
+    compilation is timed) and full rebuilds of the first snapshots, wall and CPU time,
+    and whether each rebuild's deployment equals the update's."""
+    from jaxhop.parkour import build_course_plan, course_map
+    from jaxhop.parkour._run import COURSE_GRID, same_deployment
+
+    hop = leg_hopper()
+    tm = leg_templates(hop)
+    out = {"device": device_name(), "courses": []}
+    n_rebuild = int(args.rebuild) if args.rebuild.isdigit() else 1
+    for name in args.courses.split(","):
+        course = load_course(name)
+        if not course.snapshots:
+            continue
+        cps = _plans(course, hop, tm, 0, args.cache, print)
+        maps = [course_map(course, env, hop) for _, env in course.snapshots]
+        base = cps.plans[0]
+        prev = base
+        for m in maps:  # warm-up: compiles every chunk size the updates use
+            prev = build_course_plan(m, tm, hop, grid=COURSE_GRID, previous=prev)
+        wall, cpu, plans, prev = [], [], [], base
+        for m in maps:
+            t0, c0 = time.perf_counter(), time.process_time()
+            prev = build_course_plan(m, tm, hop, grid=COURSE_GRID, previous=prev)
+            wall.append(time.perf_counter() - t0)
+            cpu.append(time.process_time() - c0)
+            plans.append(prev)
+        rb_wall, rb_cpu, equal = [], [], []
+        for m, inc in list(zip(maps, plans))[:n_rebuild]:
+            t0, c0 = time.perf_counter(), time.process_time()
+            full = build_course_plan(m, tm, hop, grid=COURSE_GRID)
+            rb_wall.append(time.perf_counter() - t0)
+            rb_cpu.append(time.process_time() - c0)
+            equal.append(same_deployment(full, inc))
+        row = {"course": name, "n_snapshots": len(maps),
+               "n_policies": int(base.stats["n_instantiated"]),
+               "update_s": wall, "update_cpu_s": cpu, "rebuild_s": rb_wall,
+               "rebuild_cpu_s": rb_cpu, "rebuild_equal": equal,
+               "recomputed_pairs": [int(p.stats["recomputed_pairs"]) for p in plans]}
+        out["courses"].append(row)
+        print(f"{name}: update median {np.median(wall):.2f} s (cpu {np.median(cpu):.2f}), "
+              f"rebuild {np.mean(rb_wall):.1f} s (cpu {np.mean(rb_cpu):.1f}), equal {equal}",
+              flush=True)
+        if args.json:
+            with open(args.json, "w") as f:
+                json.dump(out, f, indent=1)
+    return 0
+
+
+def _failures(r) -> str:
+    f = r.get("failures")
+    if isinstance(f, dict):
+        return ", ".join(f"{k} {v}" for k, v in f.items() if v) or "-"
+    if f:  # MPPC: failure messages of unfinished runs, and violations
+        kinds = sorted({m.split(" at ")[0] for m in f})
+        return "; ".join(kinds) + (f"; {r['violations']} violations" if r["violations"] else "")
+    return f"{r['violations']} violations" if r.get("violations") else "-"
+
+
+def _fmt(x, spec=".2f"):
+    return "-" if x is None else format(x, spec)
+
+
+def markdown(out: dict) -> str:
+    lines = [f"Device: {out['device']}.", "",
+             "| course | planner | noise | runs | success | jumps | time s | "
+             "decision / replan ms (median) | failures |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for r in out["rows"]:
+        who = r["planner"] + ("" if r["planner"] == "mppc" else f" {r['model']}")
+        lines.append(f"| {r['course']} | {who} | {r['noise']} | {r['runs']} | "
+                     f"{r['success_rate']:.2f} | {_fmt(r['mean_jumps'], '.1f')} | "
+                     f"{_fmt(r['mean_flight_time'])} | {_fmt(r['replan_ms']['median'], '.3f')} | "
+                     f"{_failures(r)} |")
+    lines += ["", "| course | snapshots | policies | full build s | update s (median / max) | "
+              "rebuild s | rebuild / update | update = rebuild |",
+              "|---|---|---|---|---|---|---|---|"]
+    for p in out["plans"]:
+        up = p["update_s"]
+        med = float(np.median(up)) if up else None
+        reb = p["rebuild_s"][0] if p["rebuild_s"] else None
+        ratio = (reb / up[0]) if (reb and up) else None
+        lines.append(f"| {p['course']} | {p['n_snapshots']} | {p['n_policies'][0]} | "
+                     f"{p['full_s']:.1f} | {_fmt(med)} / {_fmt(max(up) if up else None)} | "
+                     f"{_fmt(reb, '.1f')} | {_fmt(ratio, '.1f')} | "
+                     f"{'yes' if all(p['rebuild_equal']) and p['rebuild_equal'] else '-'} |")
+    return "\n".join(lines) + "\n"
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,120 @@
+"""jaxhop's MPPC under the disturbances of the comparison (issue 8).
+
+`jaxhop.mppc.run_course` executes every planned first jump exactly. Here the same
+receding-horizon loop (same planner, same replans on the snapshot in force) executes
+each jump under a disturbance, Froude-scaled like the reactive planner's (the leg's
+length `rt`, its gravity):
+
+* `sensor`: the planner sees the robot's contact point `+-0.05 rt` off (uniform, fresh per
+  replan) and plans from there; the jump (speed, angle) is executed from the true point,
+  so it lands off by the same amount;
+* `wind`: horizontal acceleration `-0.2 g / 9.81` during each flight: the landing moves
+  by `a t^2 / 2`;
+* `landing`: the landing point is off by uniform `+-0.05 rt`.
+
+Each executed jump is checked: the independent checker (`check_jump`) for the flight
+from the true takeoff point (foot and knee clearance, collisions), and the disturbed
+landing point for the restricted areas (`restricted`), the edge margin (`margin`) and a
+landing on a higher surface than planned (`collision`: the foot meets a block top or
+side before its planned touchdown). A landing on a lower surface is a fall: the robot
+continues from there. The run is finished when the robot stands within `0.05 rt` of the
+goal (the reactive planner's goal tolerance in `y`).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from ..mppc._check import check_jump
+from ..mppc._course import Course
+from ..mppc._plan import MPPC, Jump, Settings, _EnvData, run_course
+from ..mppc._robot import Robot
+
+NOISE = ("none", "wind", "sensor", "landing")
+
+
+def run_mppc_noisy(course: Course, noise: str = "none", seed: int = 0,
+                   planner: MPPC | None = None, max_jumps: int = 60) -> dict:
+    """One MPPC run under a disturbance; the `parkour` result keys plus `success`."""
+    if noise not in NOISE:
+        raise ValueError(f"noise must be one of {', '.join(NOISE)}, got {noise!r}")
+    planner = planner or MPPC(settings=Settings())
+    robot: Robot = planner.robot
+    if noise == "none":
+        out = run_course(course, planner).to_json()
+        out["success"] = bool(out["finished"] and out["violations"] == 0)
+        out["noise"] = "none"
+        return out
+    rng = np.random.default_rng(seed)
+    leg = robot.r_takeoff
+    sensor = 0.05 * leg if noise == "sensor" else 0.0
+    land = 0.05 * leg if noise == "landing" else 0.0
+    wind = -0.2 * robot.g / 9.81 if noise == "wind" else 0.0
+    tol = 0.05 * leg
+    x = course.start
+    z = float(course.environment_at(0).surface(x))
+    data0 = _EnvData(planner, course, course.environment_at(0))
+    for _ in range(3):  # compile
+        planner.replan(course, data0, x, z)
+    cache: dict = {}
+    executed, replan_ms, violations = [], [], []
+    failure = None
+    finished = False
+    for k in range(max_jumps):
+        if abs(x - course.goal) <= tol:
+            finished = True
+            break
+        env = course.environment_at(k)
+        x_meas = x + rng.uniform(-1.0, 1.0) * sensor
+        t0 = time.perf_counter()
+        data = cache.get(id(env))
+        if data is None:
+            data = cache[id(env)] = _EnvData(planner, course, env)
+        plan = planner.replan(course, data, x_meas, float(env.surface(x_meas)))
+        replan_ms.append((time.perf_counter() - t0) * 1e3)
+        if plan is None:
+            failure = f"no solution at x={x:.3f}"
+            break
+        j = plan.jumps[0]
+        shift = x - x_meas
+        flown = Jump(x, z, j.v, j.theta, j.t, j.x1 + shift, j.z1)
+        for kind, msg in check_jump(robot, course, env, flown, check_takeoff=False):
+            if kind in ("foot_clearance", "knee_clearance", "collision"):
+                violations.append({"jump": k, "kind": kind, "message": msg})
+        x1 = plan.nodes[1] + shift + 0.5 * wind * j.t**2 + rng.uniform(-1.0, 1.0) * land
+        z1 = float(env.surface(x1))
+        if z1 > j.z1 + 1e-9:
+            violations.append({"jump": k, "kind": "collision",
+                               "message": f"lands at {x1:.4f} on a surface {z1:.3f} above the "
+                                          f"planned {j.z1:.3f}"})
+        if np.any((env.restricted_lo < x1) & (x1 < env.restricted_hi)):
+            violations.append({"jump": k, "kind": "restricted",
+                               "message": f"lands at {x1:.4f} in a restricted area"})
+        edges = np.concatenate([env.front, env.back])
+        if edges.size and np.min(np.abs(x1 - edges)) < course.margin_h:
+            violations.append({"jump": k, "kind": "margin",
+                               "message": f"lands at {x1:.4f} within the edge margin"})
+        # The fall to a lower surface adds flight time.
+        t = j.t + (math.sqrt(2.0 * (j.z1 - z1) / robot.g) if z1 < j.z1 else 0.0)
+        executed.append({"xs": float(x), "zs": float(z), "v": float(j.v),
+                         "theta": float(j.theta), "t": float(t), "x1": float(x1),
+                         "z1": float(z1)})
+        x, z = x1, z1
+    else:
+        failure = f"gave up after {max_jumps} jumps"
+    if not finished and failure is None:
+        failure = "not at the goal"
+    ms = np.asarray(replan_ms)
+    return {
+        "course": course.name, "planner": "mppc", "noise": noise, "seed": int(seed),
+        "finished": bool(finished), "jumps": len(executed),
+        "flight_time": float(sum(e["t"] for e in executed)),
+        "replan_ms": ({"min": float(ms.min()), "median": float(np.median(ms)),
+                       "max": float(ms.max())} if ms.size else
+                      {"min": None, "median": None, "max": None}),
+        "violations": len(violations), "violation_details": violations, "failure": failure,
+        "executed": executed, "success": bool(finished and not violations),
+    }

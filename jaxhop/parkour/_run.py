@@ -1,0 +1,354 @@
+"""The reactive planner on a parkour course: snapshots, incremental updates, batched runs.
+
+`course_plans` builds the plan of the course's first environment in full and, for every
+snapshot, updates it incrementally (`build_course_plan(..., previous=...)`), timing each
+update (optionally against a full rebuild). `run_reactive` runs a batch of initial apexes
+through the paper's reactive controller (first match, deadbeat, clip; SPEC section 10) on
+the true terrain of the environment in force: environment `e` is in force from stride
+`from_jump` on, so stride `k` is decided with the plan of the snapshot of replan `k`.
+
+A stride fails with `restricted` (`margin`) when its touchdown lies strictly inside a
+restricted area (a margin band). Disturbances (Froude-scaled from SPEC section 11 by the
+hopper's size): `wind` (horizontal acceleration `-0.2 g / 9.81` in flight), `sensor`
+(uniform apex measurement noise `+-0.05` leg lengths on `y`, `z` and `+-0.05 sqrt(g rho0 /
+9.81)` on `ydot`), `landing` (the true apex is shifted by uniform `+-0.05` leg lengths in
+`y` before each descent, i.e. each touchdown lands that much off).
+
+All plans of a course are padded to common shapes, so one compilation of the stride
+serves every snapshot (and every course with the same padded sizes).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._execute import decide, first_match, stride
+from .._flight import OK, OUTSIDE_DOMAIN, RUNNING, SOLVER, SUCCESS
+from .._params import Hopper
+from .._plan import PlanTables
+from .._policies import PairGrid, SituatedTable
+from .._templates import template_scales
+from .._terrain import Terrain
+from ..mppc._course import Course
+from ._build import CoursePlan, build_course_plan
+from ._map import PARKOUR_FAILURES, RESTRICTED, CourseMap, course_map
+
+NOISE = ("none", "wind", "sensor", "landing")
+MAX_STEPS = 80
+#: Course plans: coarser intersection grid than `jaxhop.build_plan`'s 16 x 16 (docs).
+COURSE_GRID = PairGrid(8, 8)
+
+
+@dataclasses.dataclass
+class CoursePlans:
+    """The plans of a course's environments and how long they took."""
+
+    course: Course
+    starts: list  # from_jump of each environment (0 first)
+    maps: list
+    plans: list
+    build_s: float
+    update_s: list
+    update_cpu_s: list
+    rebuild_s: list
+    rebuild_cpu_s: list
+    rebuild_equal: list = dataclasses.field(default_factory=list)
+
+    def index_at(self, k: int) -> int:
+        return max(i for i, s in enumerate(self.starts) if s <= k)
+
+
+def course_plans(course: Course, hopper: Hopper, templates, *, grid: PairGrid = COURSE_GRID,
+                 rebuild: int = 0, log=None) -> CoursePlans:
+    """Full plan for the first environment, incremental updates for the snapshots.
+
+    The first `rebuild` snapshots' plans are also built in full (timed), for the
+    update-vs-rebuild comparison; `CoursePlans.rebuild_equal` records whether the full
+    rebuild gave the same deployment (same policies, goals and order) as the update.
+    """
+    envs = [(0, course.environment)] + list(course.snapshots)
+    maps = [course_map(course, env, hopper) for _, env in envs]
+    t0, c0 = time.perf_counter(), time.process_time()
+    plans = [build_course_plan(maps[0], templates, hopper, grid=grid)]
+    build_s = time.perf_counter() - t0
+    if log:
+        log(f"{course.name}: full plan {build_s:.1f} s "
+            f"({plans[0].stats['n_instantiated']} policies)")
+    del c0
+    update_s, update_cpu, rebuild_s, rebuild_cpu, equal = [], [], [], [], []
+    for m in maps[1:]:
+        t0, c0 = time.perf_counter(), time.process_time()
+        plans.append(build_course_plan(m, templates, hopper, grid=grid, previous=plans[-1]))
+        update_s.append(time.perf_counter() - t0)
+        update_cpu.append(time.process_time() - c0)
+        if len(rebuild_s) < int(rebuild):
+            t0, c0 = time.perf_counter(), time.process_time()
+            full = build_course_plan(m, templates, hopper, grid=grid)
+            rebuild_s.append(time.perf_counter() - t0)
+            rebuild_cpu.append(time.process_time() - c0)
+            equal.append(same_deployment(full, plans[-1]))
+        if log:
+            log(f"{course.name}: update {update_s[-1]:.2f} s"
+                + (f", rebuild {rebuild_s[-1]:.2f} s" if len(rebuild_s) == len(update_s)
+                   else ""))
+    return CoursePlans(course, [k for k, _ in envs], maps, plans, build_s, update_s,
+                       update_cpu, rebuild_s, rebuild_cpu, equal)
+
+
+def same_deployment(a: CoursePlan, b: CoursePlan) -> bool:
+    """Same instantiated policies (situated, target), goals (to 1e-12) and order."""
+    pa, pb = a.plan, b.plan
+    return bool(pa.goals.shape == pb.goals.shape and np.array_equal(pa.situated, pb.situated)
+                and np.array_equal(pa.target, pb.target)
+                and np.allclose(pa.goals, pb.goals, rtol=0, atol=1e-12)
+                and np.array_equal(pa.order, pb.order))
+
+
+# --- padding: one compiled stride for every environment ------------------------------
+
+
+def _bucket(n: int, step: int) -> int:
+    return max(step, step * math.ceil(n / step))
+
+
+def _pad_terrain(t: Terrain, n: int) -> Terrain:
+    k = n - t.n_blocks
+    end, h = t.ends[-1], t.heights[-1]
+    return Terrain(jnp.concatenate([t.starts, jnp.full(k, end)]),
+                   jnp.concatenate([t.ends, jnp.full(k, end)]),
+                   jnp.concatenate([t.heights, jnp.full(k, h)]), t.name, None)
+
+
+def _pad_tables(cp: CoursePlan, n_blocks: int, n_seg: int, n_inst: int) -> PlanTables:
+    tb = cp.plan.tables()
+    t = tb.table
+    nb, ns = t.block_first.shape[0], t.seg_block.shape[0]
+    nt = cp.plan.templates.n
+    end = t.block_left[-1] * 0 + cp.plan.terrain.ends[-1]
+    table = SituatedTable(
+        jnp.concatenate([t.centre, jnp.tile(jnp.array([[1e6, 0.0]]), (n_seg - ns, 1))]),
+        jnp.concatenate([t.seg_block, jnp.full(n_seg - ns, nb - 1, t.seg_block.dtype)]),
+        jnp.concatenate([t.edge_distance, jnp.zeros(n_seg - ns)]),
+        jnp.concatenate([t.block_first, jnp.full(n_blocks - nb, ns, t.block_first.dtype)]),
+        jnp.concatenate([t.block_count, jnp.zeros(n_blocks - nb, t.block_count.dtype)]),
+        jnp.concatenate([t.block_left, jnp.full(n_blocks - nb, end)]))
+    big = jnp.iinfo(jnp.int32).max
+    k = (n_seg - ns) * nt
+    goals = tb.goals
+    return PlanTables(table, tb.templates, _pad_terrain(tb.terrain, n_blocks),
+                      jnp.concatenate([tb.best_pos, jnp.full(k, big, tb.best_pos.dtype)]),
+                      jnp.concatenate([tb.best_inst, jnp.zeros(k, tb.best_inst.dtype)]),
+                      jnp.concatenate([goals, jnp.zeros((n_inst - goals.shape[0], 3))]))
+
+
+def _forbidden(m: CourseMap, n: int) -> jnp.ndarray:
+    f = m.forbidden_intervals()
+    pad = np.tile([[0.0, 0.0, 0.0]], (n - f.shape[0], 1))
+    return jnp.asarray(np.concatenate([f, pad]))
+
+
+class Disturb(eqx.Module):
+    wind: float
+    sensor: jnp.ndarray
+    landing: float
+
+
+def disturbance(noise: str, hopper: Hopper) -> Disturb:
+    """Froude-scaled disturbance of a named kind (see the module docstring)."""
+    if noise not in NOISE:
+        raise ValueError(f"noise must be one of {', '.join(NOISE)}, got {noise!r}")
+    f = template_scales(hopper)
+    wind = -0.2 * float(hopper.g) / 9.81 if noise == "wind" else 0.0
+    sensor = (jnp.array([0.05 * f["length"], 0.05 * f["length"], 0.05 * f["velocity"]])
+              if noise == "sensor" else jnp.zeros(3))
+    landing = 0.05 * f["length"] if noise == "landing" else 0.0
+    return Disturb(wind, sensor, landing)
+
+
+def _step_one(apex, code, key, k, tables, true_terrain, forb, goal, tol, dist, hopper, model):
+    running = code == RUNNING
+    at_goal = jnp.all(jnp.abs(apex - goal) <= tol)
+    noise = jax.random.uniform(jax.random.fold_in(key, k), (4,), minval=-1.0, maxval=1.0)
+    measured = apex + noise[:3] * dist.sensor
+    found, u, a = decide(measured, tables, hopper, model)
+    true_apex = apex.at[0].add(noise[3] * dist.landing)
+    nxt, s_code, foot = stride(true_apex, u, true_terrain, hopper, dist.wind, model)
+    s_code = jnp.where(jnp.all(jnp.isfinite(nxt)) | (s_code != OK), s_code, SOLVER)
+    inside = (foot[0] > forb[:, 0] + 1e-9) & (foot[0] < forb[:, 1] - 1e-9) & (forb[:, 2] > 0)
+    kind = jnp.max(jnp.where(inside, forb[:, 2], 0.0)).astype(jnp.int32)
+    # A restricted area outranks a margin band.
+    kind = jnp.where(jnp.any(inside & (forb[:, 2] == RESTRICTED)), RESTRICTED, kind)
+    s_code = jnp.where((s_code == OK) & (kind > 0), kind, s_code)
+    new_code = jnp.where(at_goal, SUCCESS, jnp.where(~found, OUTSIDE_DOMAIN,
+                                                     jnp.where(s_code == OK, RUNNING, s_code)))
+    stepping = running & ~at_goal & found
+    code = jnp.where(running, new_code, code)
+    ok = stepping & (s_code == OK)
+    return (jnp.where(ok, nxt, apex), code, jnp.where(stepping, foot, jnp.nan),
+            jnp.where(stepping, a, -1), stepping)
+
+
+_step_batch = jax.jit(jax.vmap(_step_one, (0, 0, 0, None, None, None, None, None, None, None,
+                                           None, None)), static_argnames=("model",))
+
+
+def _decide_one(apex, tables, hopper, model):
+    return decide(apex, tables, hopper, model)
+
+
+_decide_jit = jax.jit(_decide_one, static_argnames=("model",))
+_in_domain = jax.jit(jax.vmap(lambda z, t, h: first_match(z, t, h)[0], (0, None, None)))
+
+
+@dataclasses.dataclass
+class Padded:
+    tables: list
+    terrains: list
+    forbidden: list
+
+
+def pad_plans(cps: CoursePlans) -> Padded:
+    nb = _bucket(max(m.true.n_blocks for m in cps.maps) + 1, 64)
+    ns = _bucket(max(cp.plan.stats["n_segments"] for cp in cps.plans), 256)
+    ni = _bucket(max(cp.plan.goals.shape[0] for cp in cps.plans), 65536)
+    nf = _bucket(max(m.forbidden_intervals().shape[0] for m in cps.maps), 32)
+    return Padded([_pad_tables(cp, nb, ns, ni) for cp in cps.plans],
+                  [_pad_terrain(m.true, nb) for m in cps.maps],
+                  [_forbidden(m, nf) for m in cps.maps])
+
+
+def goal_tolerance(hopper: Hopper) -> np.ndarray:
+    """SPEC's 0.05 m, 0.05 m, 0.05 m/s, Froude-scaled."""
+    f = template_scales(hopper)
+    return np.array([0.05 * f["length"], 0.05 * f["length"], 0.05 * f["velocity"]])
+
+
+def initial_states(cps: CoursePlans, padded: Padded, n: int, seed: int,
+                   hopper: Hopper) -> tuple[np.ndarray, float]:
+    """`n` seeded initial apexes near the start, inside the first plan's global domain.
+
+    Drawn uniformly from the box `y in start + [0, 1] rho0`, `zr in [0.3, 0.8] rho0` over
+    the floor, `ydot in [0, 0.3] sqrt(g rho0)`, and kept if the plan covers them (rejection
+    sampling). Returns the states and the covered fraction of the box.
+    """
+    leg, v = float(hopper.rho0), math.sqrt(float(hopper.g) * float(hopper.rho0))
+    rng = np.random.default_rng(seed)
+    out, tried, kept = [], 0, 0
+    while len(out) < n and tried < 200 * max(n, 1):
+        m = max(4 * n, 64)
+        box = np.column_stack([cps.course.start + rng.uniform(0, 1, m) * leg,
+                               leg * (1.0 + rng.uniform(0.3, 0.8, m)),
+                               rng.uniform(0, 0.3, m) * v])
+        inside = np.asarray(_in_domain(jnp.asarray(box), padded.tables[0], hopper))
+        tried += m
+        kept += int(inside.sum())
+        out.extend(box[inside].tolist())
+    return np.asarray(out[:n]).reshape(-1, 3), kept / max(tried, 1)
+
+
+def run_reactive(cps: CoursePlans, padded: Padded, apex0, *, hopper: Hopper, noise="none",
+                 seed: int = 0, model: str = "bhop", max_steps: int = MAX_STEPS) -> dict:
+    """Run a batch of initial apexes over the course (snapshots in force by stride).
+
+    Returns:
+        dict of NumPy arrays: `code (n,)`, `steps (n,)`, `apexes (n, max_steps + 1, 3)`,
+        `footholds (n, max_steps, 2)`, `policies (n, max_steps)`.
+    """
+    apex0 = np.atleast_2d(np.asarray(apex0, float))
+    n = apex0.shape[0]
+    nb = _bucket(n, 8)
+    apex = jnp.asarray(np.concatenate([apex0, np.repeat(apex0[-1:], nb - n, 0)]))
+    keys = jax.vmap(jax.random.fold_in, (None, 0))(jax.random.key(seed), jnp.arange(nb))
+    code = jnp.full(nb, RUNNING, jnp.int32)
+    goal = jnp.asarray(cps.maps[0].goal)
+    tol = jnp.asarray(goal_tolerance(hopper))
+    dist = disturbance(noise, hopper)
+    apexes = np.full((nb, max_steps + 1, 3), np.nan)
+    apexes[:, 0] = np.asarray(apex)
+    feet = np.full((nb, max_steps, 2), np.nan)
+    used = np.full((nb, max_steps), -1, np.int64)
+    steps = np.zeros(nb, np.int64)
+    for k in range(max_steps):
+        e = cps.index_at(k)
+        apex, code, foot, a, stepping = _step_batch(
+            apex, code, keys, k, padded.tables[e], padded.terrains[e], padded.forbidden[e],
+            goal, tol, dist, hopper, model)
+        stepping = np.asarray(stepping)
+        steps += stepping
+        feet[:, k] = np.asarray(foot)
+        used[:, k] = np.asarray(a)
+        apexes[stepping, k + 1] = np.asarray(apex)[stepping]
+        if not np.any(np.asarray(code) == RUNNING):
+            break
+    code = np.asarray(code).copy()
+    at_goal = np.all(np.abs(np.asarray(apex) - np.asarray(goal)) <= np.asarray(tol), axis=1)
+    code[code == RUNNING] = np.where(at_goal[code == RUNNING], SUCCESS, 5)
+    return {"code": code[:n], "steps": steps[:n], "apexes": apexes[:n], "footholds": feet[:n],
+            "policies": used[:n]}
+
+
+def decision_ms(cps: CoursePlans, padded: Padded, apexes, hopper: Hopper,
+                model: str = "bhop") -> list:
+    """Wall time (ms) of single-apex decisions, warm (one call per apex)."""
+    out = []
+    tables = padded.tables[0]
+    _decide_jit(jnp.asarray(apexes[0]), tables, hopper, model)[1].block_until_ready()
+    for z in apexes:
+        z = jnp.asarray(z)
+        t0 = time.perf_counter()
+        _decide_jit(z, tables, hopper, model)[1].block_until_ready()
+        out.append((time.perf_counter() - t0) * 1e3)
+    return out
+
+
+def executed_strides(result: dict, i: int, hopper: Hopper, wind: float = 0.0) -> list:
+    """Run `i` as a list of `{xs, zs, v, theta, t, x1, z1}` (SPEC section 15 keys).
+
+    Stride `k`: `xs, zs` its foothold; `v, theta` the COM's liftoff speed and angle from
+    the horizontal; `t` the flight from liftoff to the next touchdown (to the final apex
+    for the last stride); `x1, z1` the next foothold (for the last stride the point under
+    the final apex).
+    """
+    g, rho0 = float(hopper.g), float(hopper.rho0)
+    n = int(result["steps"][i])
+    ap, ft = result["apexes"][i], result["footholds"][i]
+    out = []
+    for k in range(n):
+        y_f, h = ft[k]
+        nxt = ap[k + 1]
+        if not np.all(np.isfinite(nxt)):
+            break
+        t_up = math.sqrt(max(2.0 * (nxt[1] - h - rho0) / g, 0.0))
+        ydot_lo = nxt[2] - wind * t_up
+        zdot_lo = g * t_up
+        if k + 1 < n and np.all(np.isfinite(ft[k + 1])):
+            x1, z1 = ft[k + 1]
+            t_d = math.sqrt(max(2.0 * (nxt[1] - z1 - rho0) / g, 0.0))
+        else:
+            x1, z1, t_d = nxt[0], h, 0.0
+        out.append({"xs": float(y_f), "zs": float(h), "v": float(math.hypot(ydot_lo, zdot_lo)),
+                    "theta": float(math.atan2(zdot_lo, ydot_lo)), "t": float(t_up + t_d),
+                    "x1": float(x1), "z1": float(z1)})
+    return out
+
+
+def first_descent(result: dict, i: int, hopper: Hopper) -> float:
+    """Time from the initial apex to the first touchdown."""
+    ap, ft = result["apexes"][i], result["footholds"][i]
+    if not np.all(np.isfinite(ft[0])):
+        return 0.0
+    return math.sqrt(max(2.0 * (ap[0][1] - ft[0][1] - float(hopper.rho0)) / float(hopper.g),
+                         0.0))
+
+
+def result_name(code: int) -> str:
+    return "success" if code == SUCCESS else PARKOUR_FAILURES[int(code) - 1]
+
+

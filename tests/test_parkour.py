@@ -1,0 +1,280 @@
+"""The reactive planner on parkour courses (issue 8): course maps, Froude-scaled templates,
+incremental plan updates against full rebuilds, reactive runs with restricted areas."""
+
+import json
+import math
+
+import jax
+import numpy as np
+import pytest
+
+import jaxhop
+from jaxhop._policies import PairGrid, template_boxes
+from jaxhop._templates import (
+    dimensionless_templates,
+    paper_templates,
+    scaled_templates,
+    template_scales,
+)
+from jaxhop.mppc import course_from_dict, list_courses, load_course
+from jaxhop.parkour import build_course_plan, course_map, leg_hopper, leg_templates
+from jaxhop.parkour._map import MARGIN, RESTRICTED, CourseMap
+from jaxhop.parkour._run import (
+    course_plans,
+    initial_states,
+    pad_plans,
+    run_reactive,
+    same_deployment,
+)
+
+# --- dimensionless templates -------------------------------------------------------------
+
+
+def test_scaled_templates_reproduce_paper_templates_exactly():
+    a, b = scaled_templates(jaxhop.Hopper()), paper_templates()
+    assert np.array_equal(a.as_array(), b.as_array())
+    assert a.seg_length == b.seg_length
+    assert template_scales(jaxhop.Hopper()) == {"length": 1.0, "velocity": 1.0, "energy": 1.0}
+
+
+def test_dimensionless_templates_are_size_independent():
+    hop = jaxhop.Hopper(m=3.0, g=8.0665, rho0=0.19)
+    d_ref = dimensionless_templates()
+    d_leg = dimensionless_templates(scaled_templates(hop))
+    f = template_scales(hop)
+    # Back to the leg's units by its own scales: velocity / sqrt(g l), energy / (m g l).
+    arr = scaled_templates(hop).as_array()
+    assert np.allclose(arr[:, 0] / math.sqrt(hop.g * hop.rho0), d_ref[:, 0], rtol=1e-12)
+    assert np.allclose(arr[:, 2] / (hop.m * hop.g * hop.rho0), d_ref[:, 2], rtol=1e-12)
+    assert np.allclose(d_leg[:, 6:10], d_ref[:, 6:10])  # angles and k unchanged
+    assert math.isclose(scaled_templates(hop).seg_length, 0.15 * hop.rho0)
+    assert f["length"] == 0.19
+
+
+def test_regions_scale_like_froude_similarity():
+    # Independent of the scaling code: the regions computed for the small hopper are the
+    # reference regions with lengths times rho0 and speeds times sqrt(g rho0 / 9.81).
+    hop = jaxhop.Hopper(m=2.0, g=8.0665, rho0=0.19)
+    gf0, d0 = (np.asarray(x) for x in template_boxes(paper_templates(), jaxhop.Hopper()))
+    gf1, d1 = (np.asarray(x) for x in template_boxes(scaled_templates(hop), hop))
+    f = template_scales(hop)
+    scale = np.array([f["length"], f["length"], f["velocity"]])[None, :, None]
+    assert np.allclose(d1, d0 * scale, rtol=1e-9, atol=1e-12)
+    # Gf boxes are padded by one step of a 2001-point velocity grid and 1 mm in height.
+    assert np.allclose(gf1, gf0 * scale, rtol=0, atol=3e-3)
+
+
+def test_extra_energy_bands_and_bad_bands():
+    hop = leg_hopper()
+    t = leg_templates(hop)
+    assert t.n == 18  # 3 velocity bands x (5 paper + 1 extra) energy bands
+    top = 2.4 * hop.m * hop.g * hop.rho0
+    assert math.isclose(float(np.max(t.as_array()[:, 3])), top)
+    with pytest.raises(jaxhop.InputError):
+        scaled_templates(hop, extra_energy=[(2.0, 1.0)])
+
+
+def _flat_map(terrain, allowed=None):
+    n = terrain.n_blocks
+    allowed = np.ones(n, bool) if allowed is None else allowed
+    return CourseMap(terrain, terrain, allowed, np.where(allowed, 0, RESTRICTED),
+                     np.asarray(terrain.goal, float))
+
+
+@pytest.fixture(scope="module")
+def flat_plans():
+    # A short flat block (10 segments) keeps the three builds fast.
+    terrain = jaxhop.make_terrain([(0.0, 1.5, 0.0)], (1.1, 1.3, 0.0), "short")
+    ref = jaxhop.build_plan(terrain, progress=False)
+    scaled = jaxhop.build_plan(terrain, templates=scaled_templates(jaxhop.Hopper()),
+                               progress=False)
+    ours = build_course_plan(_flat_map(terrain), paper_templates(), jaxhop.Hopper())
+    return ref, scaled, ours
+
+
+def test_reference_plan_from_scaled_templates_is_identical(flat_plans):
+    ref, scaled, _ = flat_plans
+    assert np.array_equal(ref.order, scaled.order)
+    assert np.array_equal(ref.goals, scaled.goals)
+    assert np.array_equal(ref.situated, scaled.situated)
+    assert (ref.prepares != scaled.prepares).nnz == 0
+
+
+def test_course_builder_matches_build_plan(flat_plans):
+    # With every block allowed, the course builder is `jaxhop.build_plan` stage for stage.
+    ref, _, ours = flat_plans
+    p = ours.plan
+    assert np.array_equal(ref.situated, p.situated)
+    assert np.array_equal(ref.target, p.target)
+    assert np.allclose(ref.goals, p.goals, rtol=0, atol=1e-12)
+    assert np.allclose(ref.robustness, p.robustness)
+    assert np.array_equal(ref.order, p.order)
+
+
+# --- course -> terrain ---------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("name", list_courses())
+def test_course_map_classifies_every_point_like_the_course(name):
+    course = load_course(name)
+    rng = np.random.default_rng(0)
+    for _, env in [(0, course.environment)] + list(course.snapshots):
+        m = course_map(course, env)
+        blocks = np.asarray(m.true.blocks())
+        plan_h = np.asarray(m.plan.heights)
+        assert np.allclose(blocks[1:, 0], blocks[:-1, 1])  # no holes
+        x = rng.uniform(blocks[0, 0], blocks[-1, 1], 4000)
+        b = np.searchsorted(blocks[:, 1], x)
+        # Heights: the course's surface.
+        assert np.allclose(blocks[b, 2], env.surface(x))
+        # Kinds: restricted areas first, then the edge margin (brute force on the course).
+        restricted = np.any((x[:, None] > env.restricted_lo) & (x[:, None] < env.restricted_hi),
+                            axis=1)
+        edges = np.concatenate([env.front, env.back])
+        near = np.min(np.abs(x[:, None] - edges), axis=1) < course.margin_h
+        want = np.where(restricted, RESTRICTED, np.where(near, MARGIN, 0))
+        tol = np.min(np.abs(x[:, None] - np.concatenate(
+            [edges, edges - course.margin_h, edges + course.margin_h, env.restricted_lo,
+             env.restricted_hi])), axis=1) > 1e-9
+        assert np.array_equal(m.kind[b][tol], want[tol])
+        assert np.array_equal(m.allowed[b], m.kind[b] == 0)
+        # The planner's map raises only the margin bands on obstacle tops, by Mv.
+        raised = plan_h[b] - blocks[b, 2]
+        on_top = env.surface(x) > 0
+        assert np.allclose(raised[tol], np.where(on_top & near, course.margin_v, 0.0)[tol])
+
+
+# --- incremental update ----------------------------------------------------------------------
+
+SMALL = {
+    "name": "small", "start": 0.0, "goal": 1.6,
+    "margins": {"horizontal": 0.03, "vertical": 0.05},
+    "obstacles": [{"position": 0.9, "width": 0.12, "height": 0.1}],
+    "restricted": [{"position": 1.2, "width": 0.2}],
+    "snapshots": [
+        {"from_jump": 2, "obstacles": [{"position": 0.9, "width": 0.12, "height": 0.1},
+                                       {"position": 0.45, "width": 0.1, "height": 0.08}],
+         "restricted": [{"position": 1.2, "width": 0.2}]},
+        {"from_jump": 4, "obstacles": [{"position": 0.9, "width": 0.12, "height": 0.1},
+                                       {"position": 0.451, "width": 0.1, "height": 0.08}],
+         "restricted": [{"position": 1.25, "width": 0.2}]},
+    ],
+}
+GRID = PairGrid(4, 4)
+
+
+@pytest.fixture(scope="module")
+def small_plans():
+    course = course_from_dict(SMALL)
+    hop = leg_hopper()
+    tm = leg_templates(hop)
+    cps = course_plans(course, hop, tm, grid=GRID, rebuild=2)
+    fulls = [build_course_plan(m, tm, hop, grid=GRID) for m in cps.maps]
+    return course, hop, cps, fulls
+
+
+@pytest.mark.slow
+def test_incremental_update_equals_full_rebuild(small_plans):
+    course, hop, cps, fulls = small_plans
+    assert cps.rebuild_equal == [True, True]
+    for inc, full in zip(cps.plans[1:], fulls[1:]):
+        assert inc.stats["incremental"]
+        assert inc.stats["recomputed_pairs"] < full.stats["n_candidate_pairs"]
+        assert same_deployment(inc, full)
+        assert np.array_equal(inc.plan.robustness, full.plan.robustness)
+        assert (inc.plan.prepares != full.plan.prepares).nnz == 0
+
+
+@pytest.mark.slow
+def test_incremental_update_gives_the_same_outcomes(small_plans):
+    course, hop, cps, fulls = small_plans
+    padded = pad_plans(cps)
+    apex0, _ = initial_states(cps, padded, 24, 1, hop)
+    a = run_reactive(cps, padded, apex0, hopper=hop)
+    cps_full = dataclass_replace(cps, plans=fulls)
+    b = run_reactive(cps_full, pad_plans(cps_full), apex0, hopper=hop)
+    assert np.array_equal(a["code"], b["code"])
+    assert np.array_equal(a["steps"], b["steps"])
+    assert np.array_equal(a["policies"], b["policies"])
+    # And under sensor noise (same seed), where runs wander more.
+    a = run_reactive(cps, padded, apex0, hopper=hop, noise="sensor", seed=3)
+    b = run_reactive(cps_full, pad_plans(cps_full), apex0, hopper=hop, noise="sensor", seed=3)
+    assert np.array_equal(a["code"], b["code"])
+    assert np.array_equal(a["steps"], b["steps"])
+
+
+def dataclass_replace(obj, **kw):
+    import dataclasses
+
+    return dataclasses.replace(obj, **kw)
+
+
+@pytest.mark.slow
+def test_reactive_runs_never_touch_forbidden_floor(small_plans):
+    course, hop, cps, _ = small_plans
+    padded = pad_plans(cps)
+    apex0, coverage = initial_states(cps, padded, 24, 2, hop)
+    assert coverage > 0.2
+    # On the static first environment: correct by construction, every covered state
+    # reaches the goal.
+    static = dataclass_replace(cps, starts=[0], maps=cps.maps[:1], plans=cps.plans[:1])
+    res = run_reactive(static, pad_plans(static), apex0, hopper=hop)
+    assert np.all(res["code"] == 0)
+    # With the snapshots a run can be caught outside the new plan (an obstacle appears
+    # under it), but it never touches down on forbidden floor.
+    res = run_reactive(cps, padded, apex0, hopper=hop)
+    assert set(np.unique(res["code"])) <= {0, 4}
+    for i in range(len(apex0)):
+        for k in range(int(res["steps"][i])):
+            e = cps.index_at(k)
+            f = cps.maps[e].forbidden_intervals()
+            y = res["footholds"][i, k, 0]
+            assert not np.any((y > f[:, 0] + 1e-9) & (y < f[:, 1] - 1e-9))
+
+
+@pytest.mark.slow
+def test_touchdown_in_restricted_area_is_classified(small_plans):
+    from jaxhop.parkour._run import _step_batch, disturbance
+
+    course, hop, cps, _ = small_plans
+    padded = pad_plans(cps)
+    f = cps.maps[0].forbidden_intervals()
+    lo, hi, kind = f[np.argmax(f[:, 1] - f[:, 0])]
+    # Straight above the middle of a forbidden block no policy is situated: outside_domain.
+    res = run_reactive(cps, padded, [[0.5 * (lo + hi), 0.3, 0.0]], hopper=hop)
+    assert res["code"][0] == 4
+    # A state the plan covers, stepped with every touchdown declared restricted (or a
+    # margin band): the stride's code is that failure.
+    apex0, _ = initial_states(cps, padded, 1, 0, hop)
+    jnp = jax.numpy
+    keys = jax.vmap(jax.random.fold_in, (None, 0))(jax.random.key(0), jnp.arange(1))
+    for code in (RESTRICTED, MARGIN):
+        forb = padded.forbidden[0].at[0].set(jnp.array([-10.0, 10.0, code]))
+        out = _step_batch(jnp.asarray(apex0), jnp.array([-1]), keys, 0, padded.tables[0],
+                          padded.terrains[0], forb, jnp.asarray(cps.maps[0].goal),
+                          jnp.full(3, 1e-6), disturbance("none", hop), hop, "bhop")
+        assert int(out[1][0]) == code
+    assert kind in (RESTRICTED, MARGIN)
+
+
+@pytest.mark.slow
+def test_parkour_cli_reactive(tmp_path):
+    import argparse
+
+    from jaxhop.mppc._cli import add_parser
+
+    path = tmp_path / "small.json"
+    path.write_text(json.dumps(SMALL))
+    parser = argparse.ArgumentParser()
+    add_parser(parser.add_subparsers())
+    out = tmp_path / "out.json"
+    args = parser.parse_args(["parkour", "--course", str(path), "--planner", "reactive",
+                              "--runs", "4", "--json", str(out)])
+    assert args.func(args) == 0
+    res = json.loads(out.read_text())
+    for key in ("course", "planner", "finished", "jumps", "flight_time", "replan_ms",
+                "violations", "executed"):
+        assert key in res
+    assert res["planner"] == "reactive" and res["finished"] and res["violations"] == 0
+    assert res["jumps"] == len(res["executed"])
+    assert set(res["executed"][0]) == {"xs", "zs", "v", "theta", "t", "x1", "z1"}
