@@ -58,7 +58,8 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 def device_name() -> str:
     d = jax.devices()[0]
     cpu = platform.processor() or platform.machine()
-    return f"{d.platform}:{d.device_kind} ({os.cpu_count()} cores, {cpu})"
+    return (f"{d.platform}:{d.device_kind} x{len(jax.devices())} ({os.cpu_count()} cores, "
+            f"{cpu})")
 
 
 def timed(fn, repeats: int):
@@ -329,8 +330,15 @@ def main(argv=None):
     parser.add_argument("--json", required=True, help="where to write the results")
     parser.add_argument("--quick", action="store_true",
                         help="NumPy plan on a 1/20 subsample, fewer repeats (< 5 min)")
+    parser.add_argument("--cpu-devices", type=int, default=os.cpu_count() or 1,
+                        help="CPU devices to expose (default: one per core, as the jaxhop "
+                        "command does; the JAX plan and sweeps spread chunks over them)")
     args = parser.parse_args(argv)
     jax.config.update("jax_enable_x64", True)
+    try:  # must come before the backend starts; a no-op on GPU hosts
+        jax.config.update("jax_num_cpu_devices", max(args.cpu_devices, 1))
+    except (RuntimeError, AttributeError):
+        pass
     t_start = time.perf_counter()
     results, todo = [], []
 

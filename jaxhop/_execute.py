@@ -266,7 +266,8 @@ def run_batch(plan: Plan, apex0, *, key=None, true_terrain: Terrain | None = Non
                        else jnp.asarray(tolerance, float), max_steps=max_steps, model=model)
     devices = jax.local_devices()
     if chunk is None:
-        chunk = CHUNK if n >= CHUNK else 1 << (max(n, 1) - 1).bit_length()
+        full = SLIP_CHUNK if model == "slip" else CHUNK
+        chunk = full if n >= full else 1 << (max(n, 1) - 1).bit_length()
     store = None
     if checkpoint is not None:
         store = _ChunkStore(checkpoint, _fingerprint(plan, apex0, key, true_terrain,
@@ -347,6 +348,9 @@ def _combine(parts: dict, spans: list, n: int, template) -> dict:
 
 RUN_FIELDS = ("code", "steps", "apexes", "footholds", "policies")
 CHUNK = 256
+# SLIP strides cost a deadbeat solve per lane and run lengths vary more (a vmapped while loop
+# runs until the chunk's longest run ends), so SLIP sweeps use smaller chunks.
+SLIP_CHUNK = 32
 
 
 def _fingerprint(plan: Plan, apex0, key, true_terrain, disturbance, config, chunk) -> str:
