@@ -99,6 +99,7 @@ def _free_port() -> int:
 
 
 @pytest.mark.slow
+@pytest.mark.heavy
 def test_two_real_processes_equal_one(tmp_path):
     """`jaxhop sweep --distributed` on 2 local CPU processes writes the one-process JSON."""
     env = dict(os.environ, JAXHOP_CACHE=str(tmp_path / "cache"), JAXHOP_CPU_DEVICES="1")

@@ -161,6 +161,7 @@ def test_deadbeat_least_squares_reaches_targets():
 
 
 @pytest.mark.slow
+@pytest.mark.heavy
 def test_deadbeat_equals_jax_many():
     apex, goal, h = reachable_targets(12, 32)
     assert len(apex) >= 20
@@ -209,6 +210,7 @@ def test_slip_decisions_equal_jax():
 
 
 @pytest.mark.slow
+@pytest.mark.heavy
 def test_slip_sweep_subsample_against_jax():
     """`run_batch(model="slip")` against the twin's runs from the same initial apexes.
 

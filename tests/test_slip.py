@@ -248,6 +248,7 @@ _BRACKET_SHORT = pytest.mark.xfail(
     "large bracket batch once stalled for over 13 minutes", run=False)
 
 
+@pytest.mark.heavy
 @pytest.mark.slow
 @pytest.mark.parametrize("method", [pytest.param("bracket", marks=_BRACKET_SHORT), "gradient"])
 def test_deadbeat_recovers_reachable_targets(method):
