@@ -328,12 +328,17 @@ def _fin(t):
     return t if t != INF else 0.0
 
 
-def touchdown_one(apex, terrain: Terrain, hopper: Hopper, wind=0.0):
-    """`touchdown` for one apex, as scalar code over the blocks (same operations)."""
+def touchdown_one(apex, terrain: Terrain, hopper: Hopper, wind=0.0, offset=None):
+    """`touchdown` for one apex, as scalar code over the blocks (same operations).
+
+    The foot rides at `COM + offset` (default `(0, -rho0)`, BHop's foot below the COM; the
+    SLIP twin passes its touchdown-angle offset), as in `jaxhop._flight.touchdown`.
+    """
     y, z, ydot = (float(a) for a in apex)
     g = hopper.g
     blocks = terrain.as_lists()
-    fy, fz = y + 0.0, z + -hopper.rho0
+    offset = (0.0, -hopper.rho0) if offset is None else offset
+    fy, fz = y + offset[0], z + offset[1]
     t_td, block = INF, 0
     t_wall = t_com = INF
     inside = False

@@ -7,8 +7,8 @@
   would fire at touchdown, where `rho = rho0`) and the fall (COM at the foot's level or the
   leg below `COLLAPSED * rho0`, down-crossing). The same result codes as the JAX path:
   no event within `PHASE_T_MAX` or a fall is `COLLISION`, a failed solve `SOLVER`.
-- Stride on a terrain: touchdown of the offset foot (`touchdown_offset`, the scalar code of
-  `_model.touchdown_one` with a foot offset), stance on the block touched, clearance in
+- Stride on a terrain: touchdown of the offset foot (`_model.touchdown_one` with the
+  touchdown-angle offset), stance on the block touched, clearance in
   stance and on the way up, ballistic ascent; the JAX stride's failure semantics.
 - Deadbeat (eqs 12-16): `kd` from the energy balance (eq 12) with `rho_b` from the
   integrated compression; `(th_td, kc)` jointly from the same three starts as the JAX
@@ -34,9 +34,7 @@ from scipy.optimize import least_squares
 
 from ._model import (
     COLLISION,
-    HOLE,
     INF,
-    OFF_MAP,
     OK,
     SOLVER,
     Hopper,
@@ -44,7 +42,7 @@ from ._model import (
     _crossings1,
     _fin,
     _pos1,
-    _time_at_height1,
+    touchdown_one,
 )
 
 # Mirrors of jaxhop._slip / jaxhop._slip_deadbeat constants.
@@ -186,45 +184,6 @@ def slip_apex_map(apex, u, h, hopper: Hopper, rtol=RTOL, atol=ATOL):
 # --- stride on a terrain ----------------------------------------------------------------------
 
 
-def touchdown_offset(apex, offset, terrain: Terrain, hopper: Hopper, wind=0.0):
-    """`_model.touchdown_one` with the foot at `COM + offset` (as `jaxhop._flight.touchdown`).
-
-    Returns:
-        `(code, block, t, y_foot, v_td)`.
-    """
-    y, z, ydot = (float(a) for a in apex)
-    g = hopper.g
-    blocks = terrain.as_lists()
-    fy, fz = y + offset[0], z + offset[1]
-    t_td, block = INF, 0
-    t_wall = t_com = INF
-    inside = False
-    for b, (s, e, h) in enumerate(blocks):
-        t = _time_at_height1(fz, g, h)
-        if t != INF and s <= _pos1(fy, ydot, wind, t) <= e and t < t_td:
-            t_td, block = t, b
-        for px, pz in ((fy, fz), (y, z)):  # side walls, for the foot and the COM
-            inside = inside or (s < px < e and pz < h)
-            for w in (s, e):
-                for tc in _crossings1(px, ydot, wind, w):
-                    if pz + 0.0 * _fin(tc) + 0.5 * -g * _fin(tc) ** 2 < h:
-                        t_wall = min(t_wall, tc)
-        t = _time_at_height1(z, g, h)
-        if s < _pos1(y, ydot, wind, _fin(t)) < e:
-            t_com = min(t_com, t)
-    t_collide = 0.0 if inside else min(t_wall, t_com)
-    y_min, y_max = blocks[0][0], blocks[-1][1]
-    t_off = min(*_crossings1(fy, ydot, wind, y_min), *_crossings1(fy, ydot, wind, y_max))
-    t_off = 0.0 if (fy < y_min or fy > y_max) else t_off
-    t_hole = _time_at_height1(fz, g, min(h for _, _, h in blocks) - hopper.rho0)
-    times = (t_td, t_collide, t_hole, t_off)
-    first = min(range(4), key=lambda i: times[i])  # ties: the earlier entry
-    t_safe = _fin(times[first])
-    v_td = (ydot + wind * t_safe, -g * t_safe)
-    return ((OK, COLLISION, HOLE, OFF_MAP)[first], block, t_safe,
-            _pos1(fy, ydot, wind, t_safe), v_td)
-
-
 def _rise_clear(p_lo, v_lo, terrain: Terrain, hopper: Hopper, wind):
     t_up = max(v_lo[1], 0.0) / hopper.g
     for s, e, hb in terrain.as_lists():
@@ -242,7 +201,7 @@ def slip_stride(apex, u, terrain: Terrain, hopper: Hopper, wind=0.0, rtol=RTOL, 
     """
     th, kc, kd = (float(a) for a in u)
     offset = (hopper.rho0 * math.sin(th), -hopper.rho0 * math.cos(th))
-    code, block, _, y_foot, v_td = touchdown_offset(apex, offset, terrain, hopper, wind)
+    code, block, _, y_foot, v_td = touchdown_one(apex, terrain, hopper, wind, offset)
     h = terrain.as_lists()[block][2]
     foot = (y_foot, h)
     if code != OK:
