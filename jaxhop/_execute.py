@@ -62,13 +62,21 @@ def first_match(apex, tables: PlanTables, hopper: Hopper):
     Returns:
         `(found, situated, instantiated)`.
     """
+    ids, pos = _match_positions(apex, tables, hopper)
+    k = jnp.argmin(pos)
+    found = pos[k] < _NO_MATCH
+    return found, ids[k], tables.best_inst[ids[k]]
+
+
+_NO_MATCH = jnp.iinfo(jnp.int32).max
+
+
+def _match_positions(apex, tables: PlanTables, hopper: Hopper):
+    """Situated candidates near the apex and their deployment position (`_NO_MATCH` where
+    the domain does not contain the apex)."""
     ids, inside = candidate_situated(apex, tables.table, tables.templates, tables.terrain,
                                      hopper)
-    big = jnp.iinfo(jnp.int32).max
-    pos = jnp.where(inside, tables.best_pos[ids], big)
-    k = jnp.argmin(pos)
-    found = pos[k] < big
-    return found, ids[k], tables.best_inst[ids[k]]
+    return ids, jnp.where(inside, tables.best_pos[ids], _NO_MATCH)
 
 
 MODELS = ("bhop", "slip")
@@ -120,12 +128,9 @@ def decide_slip(apex, tables: PlanTables, hopper: Hopper, n_candidates: int = SL
     from ._slip import slip_apex_map
     from ._slip_deadbeat import SEARCH_TOL, deadbeat_slip
 
-    ids, inside = candidate_situated(apex, tables.table, tables.templates, tables.terrain,
-                                     hopper)
-    big = jnp.iinfo(jnp.int32).max
-    pos = jnp.where(inside, tables.best_pos[ids], big)
+    ids, pos = _match_positions(apex, tables, hopper)
     neg, k = jax.lax.top_k(-pos, n_candidates)
-    valid = -neg < big
+    valid = -neg < _NO_MATCH
     sit = ids[k]
     inst = tables.best_inst[sit]
     goals = tables.goals[inst]
