@@ -216,7 +216,9 @@ def run_one(apex0, key, tables: PlanTables, true_terrain: Terrain, hopper: Hoppe
     return code, steps, apexes, feet, used
 
 
-def _batch(apex0, keys, tables, true_terrain, hopper, disturbance, config):
+def _batch(apex0, key, index, tables, true_terrain, hopper, disturbance, config):
+    # Run i's noise comes from fold_in(key, i): independent of batch size and chunking.
+    keys = jax.vmap(jax.random.fold_in, (None, 0))(key, index)
     return jax.vmap(run_one, (0, 0, None, None, None, None, None))(
         apex0, keys, tables, true_terrain, hopper, disturbance, config)
 
@@ -261,8 +263,6 @@ def run_batch(plan: Plan, apex0, *, key=None, true_terrain: Terrain | None = Non
     apex0 = np.atleast_2d(np.asarray(apex0, float))
     n = apex0.shape[0]
     key = jax.random.key(0) if key is None else key
-    # Run i's noise comes from fold_in(key, i): independent of batch size and chunking.
-    keys = jax.vmap(jax.random.fold_in, (None, 0))(key, jnp.arange(max(n, 1)))
     tables = plan.tables()
     true_terrain = plan.terrain if true_terrain is None else true_terrain
     disturbance = Disturbance() if disturbance is None else disturbance
@@ -278,6 +278,8 @@ def run_batch(plan: Plan, apex0, *, key=None, true_terrain: Terrain | None = Non
         store = _ChunkStore(checkpoint, _fingerprint(plan, apex0, key, true_terrain,
                                                      disturbance, config, chunk))
     pending = []
+    consts = (tables, true_terrain, plan.hopper, disturbance, config)
+    on_device = {}  # the plan's tables are large: copy them to each device once, not per chunk
     mine = process_chunks(-(-n // chunk))
     for i, start in enumerate(range(0, n, chunk)):
         if i not in mine:
@@ -289,9 +291,10 @@ def run_batch(plan: Plan, apex0, *, key=None, true_terrain: Terrain | None = Non
             continue
         idx = np.arange(start, start + chunk).clip(max=n - 1)
         dev = devices[i % len(devices)]
-        args = jax.device_put((jnp.asarray(apex0[idx]), keys[idx]), dev)
-        pending.append((start, stop,
-                        _batch_jit(*args, tables, true_terrain, plan.hopper, disturbance, config)))
+        if dev not in on_device:
+            on_device[dev] = jax.device_put(consts, dev)
+        args = jax.device_put((apex0[idx], key, idx), dev)
+        pending.append((start, stop, _batch_jit(*args, *on_device[dev])))
     parts = {k: [] for k in RUN_FIELDS}
     bar = tqdm(total=n, desc="runs", unit="run", disable=not progress, file=sys.stderr,
                leave=False)
@@ -304,8 +307,7 @@ def run_batch(plan: Plan, apex0, *, key=None, true_terrain: Terrain | None = Non
         bar.update(stop - start)
     bar.close()
     return _combine(parts, [(a, b) for a, b, _ in pending], n, lambda: jax.eval_shape(
-        _batch, jnp.zeros((1, 3)), keys[:1], tables, true_terrain, plan.hopper, disturbance,
-        config))
+        _batch, jnp.zeros((1, 3)), key, np.zeros(1, int), *consts))
 
 
 def _process_info() -> tuple[int, int]:
