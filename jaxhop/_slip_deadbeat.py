@@ -5,17 +5,20 @@ For a target apex `goal` over a flat foothold at `h`, find `u = (th_td, kc, kd)`
 - `kd` from the energy balance (eq 12), with the bottom compression `rho_b` taken from the
   integrated compression phase for the current `(th_td, kc)`: the stride then ends with the
   goal's energy exactly, so matching `ydot` also matches `z`.
-- Inner problem (eqs 13-14) over `th_td` for fixed `kc`: the liftoff velocity decreases
-  with the touchdown angle (Fig. 5), so the root of `ydot_lo(th_td) = ydot*` is found by
-  bisection (the minimiser of C1's velocity term). This monotonicity does not hold over the
-  whole bracket for strides that reverse the velocity; there the search can miss.
+- Inner problem (eqs 13-14) over `th_td` for fixed `kc`: the root of
+  `ydot_lo(th_td) = ydot*` (the minimiser of C1's velocity term). The liftoff velocity
+  decreases with the touchdown angle (Fig. 5) on most of the bracket, but not on all of it
+  (it rises first next to a leg far behind a fast body, and wiggles on strides that
+  reverse the velocity), so the equation can have several roots.
 - Outer problem (eqs 15-16) over `kc`: a coarse scan, then golden-section minimisation of
   C2 next to the best scan point.
 
 Two solvers:
 
-- `"bracket"`: the nested optimistix bisection (inner, explicit `flip`) and golden section
-  (outer, over a normalised `s in [0, 1]`) above.
+- `"bracket"`: nested bracketing searches. Inner: a 17-point grid over `th_td`, optimistix
+  bisection (explicit `flip`) in up to three of the speed error's sign changes, and the
+  root whose stride has the least C2. Outer: golden section over a normalised
+  `s in [0, 1]` next to the best point of a 7-point scan.
 - `"gradient"`: the two problems solved jointly over `(th_td, kc)` (`kd` still from eq 12)
   by damped Gauss-Newton steps applied with optax, the Jacobian from forward-mode
   differentiation through diffrax (`ForwardMode`), started from three points of a coarse
@@ -34,9 +37,17 @@ import jax.numpy as jnp
 import optax
 import optimistix as optx
 
-from ._flight import OK
+from ._flight import OK, touchdown
 from ._params import Hopper
-from ._slip import Tolerances, _cartesian, ascent, compress, decompress, flat_touchdown
+from ._slip import (
+    Tolerances,
+    _cartesian,
+    _polar_state,
+    ascent,
+    compress,
+    decompress,
+    flat_touchdown,
+)
 
 # Control limits (SPEC section 13) and the touchdown-angle search interval.
 KAPPA_LO, KAPPA_HI = 10.0, 60.0  # kc rho0 / (m g)
@@ -48,8 +59,16 @@ SEARCH_TOL = Tolerances(rtol=1e-8, atol=1e-8)
 _FAIL_SPEED = 1e3
 # Weights of C2 (eq 16): position (m) and velocity (m/s) errors weigh the same.
 W_POS, W_VEL = 1.0, 1.0
+# Bracket solver: touchdown-angle grid of the inner problem, sign changes bisected per
+# stiffness, bisection steps per sign change, points of the outer stiffness scan.
+TH_GRID, N_ROOTS, BISECTION_STEPS, KC_SCAN = 17, 3, 24, 7
+# A leg whose radial speed at touchdown is above -GRAZE_SPEED (m/s) counts as unloaded in
+# the bracket searches (see `_search_trial`).
+GRAZE_SPEED = 1e-3
 # Largest Gauss-Newton step per coordinate of (th_td in rad, s = normalised kc).
 MAX_STEP = 0.2
+# Bisection steps of the inner problem that seed the gradient solver (0: grid starts only).
+START_BISECTIONS = 14
 
 
 def kc_limits(hopper: Hopper):
@@ -64,8 +83,13 @@ def energy_kd(apex, goal, kc, rho_b, hopper: Hopper):
     return kc + gain / (rho_b - hopper.rho0) ** 2
 
 
-def _trial(apex, goal, h, th, kc, hopper: Hopper, tol: Tolerances):
+def _trial(apex, goal, h, th, kc, hopper: Hopper, tol: Tolerances, terrain=None):
     """Stride over flat ground with `kd` from eq 12.
+
+    With `terrain`, the foot lands where it meets the terrain (`_flight.touchdown`), on the
+    height of that block instead of `h`: a stride planned for a foothold near a block's edge
+    whose foot lands on the neighbouring block is computed on the block it lands on. A
+    touchdown that fails (a wall, a hole) counts as a failed stride.
 
     Returns:
         `(next_apex, code, kd, speed)`. `speed` is what the inner search sees: the liftoff
@@ -74,6 +98,14 @@ def _trial(apex, goal, h, th, kc, hopper: Hopper, tol: Tolerances):
         (a leg far behind the body acts like "too fast"), which keeps it monotone.
     """
     y_foot, v_td, reached = flat_touchdown(apex, th, h, hopper)
+    if terrain is not None:
+        offset = hopper.rho0 * jnp.stack([jnp.sin(th), -jnp.cos(th)])
+        t_code, block, _, y_t, v_t = touchdown(apex, offset, terrain, hopper)
+        landed = t_code == OK
+        y_foot = jnp.where(landed, y_t, y_foot)
+        v_td = jnp.where(landed, v_t, v_td)
+        h = jnp.where(landed, terrain.heights[block], h)
+        reached = landed
     x_b, code_c = compress(th, v_td, kc, hopper, tol)
     kd = energy_kd(apex, goal, kc, x_b[0], hopper)
     # A non-positive kd cannot push off: the trial runs with kc and counts as failed.
@@ -94,18 +126,78 @@ def _c2(nxt, code, goal):
     return jnp.where(code == OK, cost, 1e6)
 
 
-def _inner_th(apex, goal, h, kc, hopper, tol):
-    """Touchdown angle whose stride (with eq 12's kd) reaches the goal velocity (eqs 13-14)."""
-    def speed_error(th, _):
-        return _trial(apex, goal, h, th, kc, hopper, tol)[3] - goal[2]
+def _search_trial(apex, goal, h, th, kc, hopper, tol):
+    """`_trial` as the bracket searches see it: a barely loaded leg counts as failed.
 
-    # flip=True: the error decreases with th; explicit, so no extra evaluations at the ends.
-    # Bisection stops when both the bracket (rad) and |error| (m/s) are below atol; the
-    # trial strides are only good to ~1e-8, so a smaller atol just runs to max_steps.
-    solver = optx.Bisection(rtol=0.0, atol=1e-7, flip=True)
-    sol = optx.root_find(speed_error, solver, jnp.zeros(()), options=dict(lower=TH_LO,
-                         upper=TH_HI), max_steps=64, throw=False)
-    return sol.value
+    A leg whose radial speed at touchdown is within `GRAZE_SPEED` of zero compresses by
+    ~nothing and lifts off ~1e-13 s after its bottom; its decompression solve then runs to
+    `MAX_STEPS` (4096 steps), and under `vmap` one such lane stalls every other lane. A
+    bisection next to the unloaded-leg boundary converges right onto it, so the searches
+    run a benign `th_td = 0` stride there instead and see the failure value `_trial` gives
+    an unloaded leg (`+_FAIL_SPEED` for a leg behind the body, `-_FAIL_SPEED` ahead).
+    """
+    _, v_td, _ = flat_touchdown(apex, th, h, hopper)
+    rhod, _ = _polar_state(th, v_td)
+    grazing = rhod > -GRAZE_SPEED
+    nxt, code, kd, speed = _trial(apex, goal, h, jnp.where(grazing, 0.0, th), kc, hopper, tol)
+    speed = jnp.where(grazing, jnp.where(th < 0, _FAIL_SPEED, -_FAIL_SPEED), speed)
+    return nxt, jnp.where(grazing, jnp.maximum(code, 1), code), kd, speed
+
+
+def _inner_th(apex, goal, h, kc, hopper, tol):
+    """Touchdown angle whose stride (with eq 12's kd) reaches the goal velocity (eqs 13-14).
+
+    The liftoff speed decreases with `th_td` on most of `[TH_LO, TH_HI]` (Fig. 5), but not
+    everywhere: next to a leg far behind a fast body it rises first (a maximum, then the
+    decreasing branch), strides that reverse the velocity add wiggles, and the failure
+    values jump. So the speed error is sampled on `TH_GRID` points, up to `N_ROOTS` of its
+    sign changes are bisected (vmapped), and the root whose stride has the least C2 wins.
+    Sign changes between two completed stances come first, then those next to a failed
+    one (often only the jump to a failure value), leftmost first. Without any sign change
+    the grid point of least |error| is returned.
+
+    Returns:
+        `(th_td, c2)`: the touchdown angle and the C2 of its stride.
+    """
+    def trial(th):
+        return _search_trial(apex, goal, h, th, kc, hopper, tol)
+
+    def error(th):
+        return trial(th)[3] - goal[2]
+
+    grid = jnp.linspace(TH_LO, TH_HI, TH_GRID)
+    err = jax.vmap(error)(grid)
+    done = jnp.abs(err + goal[2]) < 0.5 * _FAIL_SPEED  # a completed stance, not a failure
+    change = (err[:-1] > 0) != (err[1:] > 0)
+    score = jnp.where(change, 1 + done[:-1].astype(int) + done[1:].astype(int), 0)
+    cells = jnp.argsort(-score, stable=True)[:N_ROOTS]
+    found = score[cells] > 0
+    # Unused lanes bisect a degenerate bracket at the grid point of least |error|.
+    nearest = jnp.argmin(jnp.where(done, jnp.abs(err), jnp.inf))
+    lower = jnp.where(found, grid[cells], grid[nearest])
+    upper = jnp.where(found, grid[cells + 1], grid[nearest])
+    sign = jnp.where(err[cells] > 0, 1.0, -1.0)  # sign * error falls from + to - in a cell
+
+    def bisect(lo, hi, sg):
+        # flip=True: `sg * error` is positive at `lo`; explicit, so no evaluations at the
+        # ends. Bisection stops when both the bracket (rad) and |error| (m/s) are below
+        # atol (after ~21 steps); one next to a jump never gets there and stops at
+        # BISECTION_STEPS, where the bracket is a grid cell / 2**24 < 1e-8 rad wide.
+        solver = optx.Bisection(rtol=0.0, atol=1e-7, flip=True)
+        sol = optx.root_find(lambda th, _: sg * error(th), solver, 0.5 * (lo + hi),
+                             options=dict(lower=lo, upper=hi), max_steps=BISECTION_STEPS,
+                             throw=False)
+        return sol.value
+
+    def c2(th):
+        nxt, code, *_ = trial(th)
+        return _c2(nxt, code, goal)
+
+    roots = jax.vmap(bisect)(lower, upper, sign)
+    costs = jax.vmap(c2)(roots)
+    costs = jnp.where(found | (jnp.arange(N_ROOTS) == 0), costs, jnp.inf)
+    best = jnp.argmin(costs)
+    return roots[best], costs[best]
 
 
 def golden_minimise(fn, lower, upper, rtol=0.0, atol=1e-8, max_steps=80):
@@ -123,14 +215,11 @@ def golden_minimise(fn, lower, upper, rtol=0.0, atol=1e-8, max_steps=80):
     return lower + sol.value * (upper - lower)
 
 
-def _deadbeat_bracket(apex, goal, h, hopper, tol, n_scan=7):
+def _deadbeat_bracket(apex, goal, h, hopper, tol, n_scan=KC_SCAN):
     kc_lo, kc_hi = kc_limits(hopper)
 
     def cost(s):
-        kc = kc_lo + s * (kc_hi - kc_lo)
-        th = _inner_th(apex, goal, h, kc, hopper, tol)
-        nxt, code, *_ = _trial(apex, goal, h, th, kc, hopper, tol)
-        return _c2(nxt, code, goal)
+        return _inner_th(apex, goal, h, kc_lo + s * (kc_hi - kc_lo), hopper, tol)[1]
 
     # C2 can have two valleys in kc (strides that reverse the velocity): a coarse scan
     # picks the better one, golden section then refines inside its two neighbouring cells.
@@ -140,17 +229,18 @@ def _deadbeat_bracket(apex, goal, h, hopper, tol, n_scan=7):
     upper = scan[jnp.minimum(best + 1, n_scan - 1)]
     s = golden_minimise(cost, lower, upper, atol=1e-6)
     kc = kc_lo + s * (kc_hi - kc_lo)
-    return _inner_th(apex, goal, h, kc, hopper, tol), kc
+    return _inner_th(apex, goal, h, kc, hopper, tol)[0], kc
 
 
-def _residual(p, apex, goal, h, hopper, tol):
+def _residual(p, apex, goal, h, hopper, tol, terrain=None):
     th, s = p
     kc_lo, kc_hi = kc_limits(hopper)
-    nxt, code, *_ = _trial(apex, goal, h, th, kc_lo + s * (kc_hi - kc_lo), hopper, tol)
+    nxt, code, *_ = _trial(apex, goal, h, th, kc_lo + s * (kc_hi - kc_lo), hopper, tol,
+                           terrain)
     return jnp.where(code == OK, nxt - goal, 1e3)
 
 
-def _initial_guesses(apex, goal, h, hopper, tol):
+def _initial_guesses(apex, goal, h, hopper, tol, terrain=None):
     """Starts of the gradient solver: the best `th_td` of a coarse grid for each of a few `s`.
 
     One start per `s` row, because C2 can have two valleys in `kc` (strides that reverse the
@@ -160,14 +250,38 @@ def _initial_guesses(apex, goal, h, hopper, tol):
     weights = jnp.array([W_POS, W_POS, W_VEL])
 
     def cost(p):
-        return jnp.sum(weights * _residual(p, apex, goal, h, hopper, tol) ** 2)
+        return jnp.sum(weights * _residual(p, apex, goal, h, hopper, tol, terrain) ** 2)
 
     costs = jax.vmap(jax.vmap(cost))(jnp.stack([ths, ss], axis=-1))
     best = jnp.argmin(costs, axis=1)
-    return jnp.stack([ths[0, best], ss[:, 0]], axis=1)
+    grid = jnp.stack([ths[0, best], ss[:, 0]], axis=1)
+    if START_BISECTIONS == 0:
+        return grid
+    # The stride's speed is very steep in th_td at low speeds (the valley of C2 can be far
+    # narrower than the grid step): a short bisection of the inner problem (eqs 13-14) per
+    # row gives a second candidate start; each row keeps the better of the two.
+    kc_lo, kc_hi = kc_limits(hopper)
+
+    def bisect(s):
+        kc = kc_lo + s * (kc_hi - kc_lo)
+
+        def body(_, b):
+            lo, hi = b
+            mid = 0.5 * (lo + hi)
+            fast = _trial(apex, goal, h, mid, kc, hopper, tol, terrain)[3] > goal[2]
+            return jnp.where(fast, mid, lo), jnp.where(fast, hi, mid)
+
+        lo, hi = jax.lax.fori_loop(0, START_BISECTIONS, body, (jnp.asarray(TH_LO, float),
+                                                             jnp.asarray(TH_HI, float)))
+        return 0.5 * (lo + hi)
+
+    inner = jnp.stack([jax.vmap(bisect)(ss[:, 0]), ss[:, 0]], axis=1)
+    better = jax.vmap(cost)(inner) < jnp.min(costs, axis=1)
+    return jnp.where(better[:, None], inner, grid)
 
 
-def _deadbeat_gradient(apex, goal, h, hopper, tol, max_iter=16, cost_tol=1e-16):
+def _deadbeat_gradient(apex, goal, h, hopper, tol, max_iter=16, cost_tol=1e-16,
+                       terrain=None):
     """Damped Gauss-Newton on C2 over `p = (th_td, s)`; optax applies the steps.
 
     The Jacobian of the weighted apex error comes from forward-mode differentiation through
@@ -178,7 +292,7 @@ def _deadbeat_gradient(apex, goal, h, hopper, tol, max_iter=16, cost_tol=1e-16):
     sqrt_w = jnp.sqrt(jnp.array([W_POS, W_POS, W_VEL]))
 
     def residual(p):
-        r = sqrt_w * _residual(p, apex, goal, h, hopper, tol)
+        r = sqrt_w * _residual(p, apex, goal, h, hopper, tol, terrain)
         return r, r
 
     opt = optax.chain(optax.clip(MAX_STEP), optax.sgd(1.0))
@@ -213,14 +327,14 @@ def _deadbeat_gradient(apex, goal, h, hopper, tol, max_iter=16, cost_tol=1e-16):
         best, _, _, cost, *_ = jax.lax.while_loop(cond, body, carry)
         return best, cost
 
-    ends, costs = jax.vmap(solve)(_initial_guesses(apex, goal, h, hopper, tol))
+    ends, costs = jax.vmap(solve)(_initial_guesses(apex, goal, h, hopper, tol, terrain))
     best = ends[jnp.argmin(costs)]
     kc_lo, kc_hi = kc_limits(hopper)
     return best[0], kc_lo + best[1] * (kc_hi - kc_lo)
 
 
 def deadbeat_slip(apex, goal, h, hopper: Hopper, method: str = "gradient",
-                  tol: Tolerances = SEARCH_TOL):
+                  tol: Tolerances = SEARCH_TOL, terrain=None):
     """Position-aware SLIP deadbeat controls taking `apex` to `goal` over a foothold at `h`.
 
     Arguments:
@@ -229,6 +343,8 @@ def deadbeat_slip(apex, goal, h, hopper: Hopper, method: str = "gradient",
         method: `"gradient"` (Gauss-Newton through diffrax, optax steps; the default) or
             `"bracket"` (nested bisection / golden section).
         tol: integration tolerances of the trial strides.
+        terrain: `"gradient"` only: plan each trial stride on the block its foot lands on
+            in this map (the execution controller passes the planner's map), not on `h`.
 
     Returns:
         `(u, ok)`: `u = (th_td, kc, kd)` clipped to the limits of SPEC section 13; `ok` when
@@ -240,10 +356,10 @@ def deadbeat_slip(apex, goal, h, hopper: Hopper, method: str = "gradient",
     if method == "bracket":
         th, kc = _deadbeat_bracket(apex, goal, h, hopper, tol)
     elif method == "gradient":
-        th, kc = _deadbeat_gradient(apex, goal, h, hopper, tol)
+        th, kc = _deadbeat_gradient(apex, goal, h, hopper, tol, terrain=terrain)
     else:
         raise ValueError(f"method must be 'bracket' or 'gradient', got {method!r}")
-    _, code, kd, _ = _trial(apex, goal, h, th, kc, hopper, tol)
+    _, code, kd, _ = _trial(apex, goal, h, th, kc, hopper, tol, terrain)
     kc_lo, kc_hi = kc_limits(hopper)
     kc_c = jnp.clip(kc, kc_lo, kc_hi)
     kd_c = jnp.clip(kd, RATIO_LO * kc_c, RATIO_HI * kc_c)
