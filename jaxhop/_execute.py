@@ -125,7 +125,7 @@ def decide_slip(apex, tables: PlanTables, hopper: Hopper, n_candidates: int = SL
     Returns:
         `(found, u, instantiated)`.
     """
-    from ._slip import slip_apex_map
+    from ._slip import slip_stride
     from ._slip_deadbeat import SEARCH_TOL, deadbeat_slip
 
     ids, pos = _match_positions(apex, tables, hopper)
@@ -137,8 +137,8 @@ def decide_slip(apex, tables: PlanTables, hopper: Hopper, n_candidates: int = SL
     h = tables.table.centre[sit // tables.templates.n, 1]
 
     def one(goal, h_):
-        u, ok = deadbeat_slip(apex, goal, h_, hopper)
-        pred, code = slip_apex_map(apex, u, h_, hopper, SEARCH_TOL)
+        u, ok = deadbeat_slip(apex, goal, h_, hopper, terrain=tables.terrain)
+        pred, code, _ = slip_stride(apex, u, tables.terrain, hopper, 0.0, SEARCH_TOL)
         miss = jnp.max(jnp.abs(pred - goal) / jnp.asarray(SLIP_ACCEPT))
         return u, jnp.where((code == OK) & jnp.all(jnp.isfinite(pred)), miss, jnp.inf)
 

@@ -26,7 +26,7 @@ from ._model import (
     touchdown_one,
 )
 from ._plan import Plan
-from ._slip import SEARCH_ATOL, SEARCH_RTOL, deadbeat_slip, slip_apex_map, slip_stride
+from ._slip import SEARCH_ATOL, SEARCH_RTOL, deadbeat_slip, slip_stride
 
 _BIG = np.iinfo(np.int32).max
 # Mirrors of jaxhop._execute's SLIP decision constants.
@@ -118,8 +118,9 @@ class Controller:
             a = int(self.best_inst[s])
             goal = self.plan.goals[a]
             h = sit.segs.centre[s // sit.templates.n, 1]
-            u, _ = deadbeat_slip(apex, goal, h, sit.hopper)
-            pred, code = slip_apex_map(apex, u, h, sit.hopper, SEARCH_RTOL, SEARCH_ATOL)
+            u, _ = deadbeat_slip(apex, goal, h, sit.hopper, terrain=sit.terrain)
+            pred, code, _ = slip_stride(apex, u, sit.terrain, sit.hopper, 0.0, SEARCH_RTOL,
+                                       SEARCH_ATOL)
             ok = code == OK and np.all(np.isfinite(pred))
             misses.append(float(np.max(np.abs(pred - goal) / SLIP_ACCEPT)) if ok else np.inf)
             us.append(u)
@@ -137,7 +138,7 @@ class Controller:
         nt = sit.templates.n
         h = sit.segs.centre[s // nt, 1]
         if model == "slip":
-            return deadbeat_slip(apex, self.plan.goals[a], h, sit.hopper)[0]
+            return deadbeat_slip(apex, self.plan.goals[a], h, sit.hopper, terrain=sit.terrain)[0]
         u = deadbeat_bhop(apex, self.plan.goals[a], h, sit.hopper)
         lo, hi = self.lo[s % nt], self.hi[s % nt]
         u = np.where(np.isfinite(u), u, hi)

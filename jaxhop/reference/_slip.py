@@ -63,6 +63,9 @@ MAX_NFEV = 48
 DIFF_STEP = 1e-6
 JAC_TOL = 1e-11
 MAX_STEP = 0.2
+# Bisection steps of the inner problem that seed Gauss-Newton (`START_BISECTIONS` in JAX).
+START_BISECTIONS = 14
+FAIL_SPEED = 1e3
 # least_squares ("lm"): relative finite-difference step on the search-tolerance strides.
 LM_DIFF_STEP = 1e-6
 # The fastest of DOP853, RK45 and LSODA at rtol = atol = 1e-10 here (1.4, 4.1, 2.7 ms per
@@ -233,9 +236,24 @@ def energy_kd(apex, goal, kc, rho_b, hopper: Hopper):
         return kc + gain / np.float64(rho_b - hopper.rho0) ** 2
 
 
-def trial(apex, goal, h, th, kc, hopper: Hopper, rtol=SEARCH_RTOL, atol=SEARCH_ATOL):
-    """Stride over flat ground with `kd` from eq 12: `(next_apex, code, kd)` (as `_trial`)."""
+def _descent(apex, th, h, hopper: Hopper, terrain):
+    """`(y_foot, v_td, h, reached)`: flat ground at `h`, or with `terrain` the block the foot
+    meets (as `_trial` in JAX: a failed touchdown keeps the flat descent and fails)."""
     y_foot, v_td, reached = flat_touchdown(apex, th, h, hopper)
+    if terrain is not None:
+        offset = (hopper.rho0 * math.sin(th), -hopper.rho0 * math.cos(th))
+        code, block, _, y_t, v_t = touchdown_one(apex, terrain, hopper, 0.0, offset)
+        reached = code == OK
+        if reached:
+            y_foot, v_td, h = y_t, v_t, terrain.as_lists()[block][2]
+    return y_foot, v_td, h, reached
+
+
+def trial(apex, goal, h, th, kc, hopper: Hopper, rtol=SEARCH_RTOL, atol=SEARCH_ATOL,
+          terrain=None):
+    """Stride with `kd` from eq 12: `(next_apex, code, kd)` (as `_trial`); over flat ground
+    at `h`, or with `terrain` on the block the foot lands on."""
+    y_foot, v_td, h, reached = _descent(apex, th, h, hopper, terrain)
     x_b, code_c = compress(th, v_td, kc, hopper, rtol, atol)
     kd = float(energy_kd(apex, goal, kc, x_b[0], hopper))
     kd_ok = kd > 0
@@ -247,32 +265,70 @@ def trial(apex, goal, h, th, kc, hopper: Hopper, rtol=SEARCH_RTOL, atol=SEARCH_A
     return ascent(p_lo + np.array([y_foot, h]), v_lo, hopper), code, kd
 
 
+def trial_speed(apex, goal, h, th, kc, hopper: Hopper, terrain=None):
+    """The liftoff speed the inner search sees (`_trial`'s `speed`): `ydot_lo` when both
+    stance phases complete, else `+-FAIL_SPEED` by the side the leg ended on."""
+    _, v_td, _, _ = _descent(apex, th, h, hopper, terrain)
+    x_b, code_c = compress(th, v_td, kc, hopper, SEARCH_RTOL, SEARCH_ATOL)
+    if code_c != OK:
+        return FAIL_SPEED if x_b[1] < 0 else -FAIL_SPEED
+    kd = float(energy_kd(apex, goal, kc, x_b[0], hopper))
+    x_lo, code_d = decompress(x_b, kd if kd > 0 else kc, hopper, SEARCH_RTOL, SEARCH_ATOL)
+    if code_d == OK and kd > 0:
+        return _cartesian(x_lo)[1][0]
+    return FAIL_SPEED if x_lo[1] < 0 else -FAIL_SPEED
+
+
 def _clip_p(p):
     return min(max(float(p[0]), TH_LO), TH_HI), min(max(float(p[1]), 0.0), 1.0)
 
 
-def _residual(p, apex, goal, h, hopper: Hopper, sqrt_w):
+def _residual(p, apex, goal, h, hopper: Hopper, sqrt_w, terrain=None):
     """Weighted apex error of a trial stride at `p = (th_td, s)`, clipped to the bounds as
     the JAX solver clips its iterates; `1e3` where the trial fails."""
     th, s = _clip_p(p)
     kc_lo, kc_hi = kc_limits(hopper)
-    nxt, code, _ = trial(apex, goal, h, th, kc_lo + s * (kc_hi - kc_lo), hopper)
+    nxt, code, _ = trial(apex, goal, h, th, kc_lo + s * (kc_hi - kc_lo), hopper,
+                         terrain=terrain)
     return sqrt_w * (nxt - goal) if code == OK else sqrt_w * 1e3
 
 
-def initial_guesses(apex, goal, h, hopper: Hopper):
-    """The JAX solver's starts: the best `th_td` of 9 on `[-0.5, 0.5]` for each `s` of 3."""
+def _bisect_th(apex, goal, h, kc, hopper: Hopper, terrain):
+    """`START_BISECTIONS` bisection steps of the inner problem on `[TH_LO, TH_HI]`."""
+    lo, hi = TH_LO, TH_HI
+    for _ in range(START_BISECTIONS):
+        mid = 0.5 * (lo + hi)
+        if trial_speed(apex, goal, h, mid, kc, hopper, terrain) > goal[2]:
+            lo = mid
+        else:
+            hi = mid
+    return 0.5 * (lo + hi)
+
+
+def initial_guesses(apex, goal, h, hopper: Hopper, terrain=None):
+    """The JAX solver's starts: for each `s` of 3, the best `th_td` of 9 on `[-0.5, 0.5]`,
+    or the inner problem's short bisection where that costs less."""
     ths = np.linspace(-0.5, 0.5, 9)
     weights = np.array([W_POS, W_POS, W_VEL])
+    kc_lo, kc_hi = kc_limits(hopper)
+
+    def cost(th, s):
+        return float(np.sum(weights * _residual((th, s), apex, goal, h, hopper, np.ones(3),
+                                                terrain) ** 2))
+
     starts = []
     for s in (0.05, 0.35, 0.7):
-        costs = [float(np.sum(weights * _residual((th, s), apex, goal, h, hopper,
-                                                  np.ones(3)) ** 2)) for th in ths]
-        starts.append((ths[int(np.argmin(costs))], s))
+        costs = [cost(th, s) for th in ths]
+        start = (ths[int(np.argmin(costs))], s)
+        if START_BISECTIONS:
+            th_b = _bisect_th(apex, goal, h, kc_lo + s * (kc_hi - kc_lo), hopper, terrain)
+            if cost(th_b, s) < min(costs):
+                start = (th_b, s)
+        starts.append(start)
     return np.asarray(starts)
 
 
-def _jacobian(p, apex, goal, h, hopper: Hopper, sqrt_w):
+def _jacobian(p, apex, goal, h, hopper: Hopper, sqrt_w, terrain=None):
     """Forward differences of the weighted residual at `p` (steps `DIFF_STEP`), on trial
     strides integrated to `JAC_TOL`: the JAX solver differentiates its 1e-8 solve exactly
     (forward mode); here integration noise / step must stay far below the derivative."""
@@ -280,7 +336,7 @@ def _jacobian(p, apex, goal, h, hopper: Hopper, sqrt_w):
 
     def res(th, s):
         nxt, code, _ = trial(apex, goal, h, th, kc_lo + s * (kc_hi - kc_lo), hopper,
-                             JAC_TOL, JAC_TOL)
+                             JAC_TOL, JAC_TOL, terrain)
         return sqrt_w * (nxt - goal) if code == OK else sqrt_w * 1e3
 
     base = res(p[0], p[1])
@@ -288,7 +344,8 @@ def _jacobian(p, apex, goal, h, hopper: Hopper, sqrt_w):
                      (res(p[0], p[1] + DIFF_STEP) - base) / DIFF_STEP], axis=1)
 
 
-def _gauss_newton(p0, apex, goal, h, hopper: Hopper, sqrt_w, max_iter=16, cost_tol=1e-16):
+def _gauss_newton(p0, apex, goal, h, hopper: Hopper, sqrt_w, max_iter=16, cost_tol=1e-16,
+                  terrain=None):
     """`_deadbeat_gradient`'s damped Gauss-Newton, step for step: the step
     `(J'J + 1e-12 tr(J'J) I)^-1 J'r` times the trust scale, clipped to `MAX_STEP` per
     coordinate and the iterate to the bounds; a trial that does not lower C2 is rejected and
@@ -303,18 +360,18 @@ def _gauss_newton(p0, apex, goal, h, hopper: Hopper, sqrt_w, max_iter=16, cost_t
         return np.array([min(max(q[0], TH_LO), TH_HI), min(max(q[1], 0.0), 1.0)])
 
     best = np.asarray(p0, float)
-    r_b = _residual(best, apex, goal, h, hopper, sqrt_w)
-    jac_b = _jacobian(best, apex, goal, h, hopper, sqrt_w)
+    r_b = _residual(best, apex, goal, h, hopper, sqrt_w, terrain)
+    jac_b = _jacobian(best, apex, goal, h, hopper, sqrt_w, terrain)
     cost_b = float(r_b @ r_b)
     trust = 1.0
     trial_p = step(best, r_b, jac_b, trust)
     for _ in range(max_iter):
         if not cost_b > cost_tol:
             break
-        r = _residual(trial_p, apex, goal, h, hopper, sqrt_w)
+        r = _residual(trial_p, apex, goal, h, hopper, sqrt_w, terrain)
         if float(r @ r) < cost_b:
             best, r_b, cost_b = trial_p, r, float(r @ r)
-            jac_b = _jacobian(best, apex, goal, h, hopper, sqrt_w)
+            jac_b = _jacobian(best, apex, goal, h, hopper, sqrt_w, terrain)
             trust = min(2.0 * trust, 1.0)
         else:
             trust = 0.25 * trust
@@ -322,7 +379,8 @@ def _gauss_newton(p0, apex, goal, h, hopper: Hopper, sqrt_w, max_iter=16, cost_t
     return best, cost_b
 
 
-def deadbeat_slip(apex, goal, h, hopper: Hopper, method: str = "gauss-newton"):
+def deadbeat_slip(apex, goal, h, hopper: Hopper, method: str = "gauss-newton",
+                  terrain: Terrain | None = None):
     """Position-aware SLIP deadbeat `(u, ok)` from `apex` to `goal` over a foothold at `h`.
 
     `u = (th_td, kc, kd)` clipped to the limits; `ok` when no clipping was needed and the
@@ -332,30 +390,32 @@ def deadbeat_slip(apex, goal, h, hopper: Hopper, method: str = "gauss-newton"):
         method: `"gauss-newton"` (the JAX gradient solver's iteration, finite-difference
             Jacobian; the default, used by the execution path) or `"lm"`
             (`scipy.optimize.least_squares`, MINPACK Levenberg-Marquardt).
+        terrain: plan each trial on the block the foot lands on in this map (the JAX
+            solver's `terrain`).
     """
     apex = np.asarray(apex, float)
     goal = np.asarray(goal, float)
     h = float(h)
     sqrt_w = np.sqrt(np.array([W_POS, W_POS, W_VEL]))
     best, best_cost = None, INF
-    for p0 in initial_guesses(apex, goal, h, hopper):
+    for p0 in initial_guesses(apex, goal, h, hopper, terrain):
         if method == "lm":
             sol = least_squares(_residual, p0, method="lm", jac="2-point",
                                 diff_step=LM_DIFF_STEP, ftol=1e-15, xtol=1e-15, gtol=1e-15,
-                                max_nfev=MAX_NFEV, args=(apex, goal, h, hopper, sqrt_w))
+                                max_nfev=MAX_NFEV, args=(apex, goal, h, hopper, sqrt_w, terrain))
             end, cost = _clip_p(sol.x), 2.0 * sol.cost
         elif method == "gauss-newton":
-            end, cost = _gauss_newton(p0, apex, goal, h, hopper, sqrt_w)
+            end, cost = _gauss_newton(p0, apex, goal, h, hopper, sqrt_w, terrain=terrain)
         else:
             raise ValueError(f"method must be 'gauss-newton' or 'lm', got {method!r}")
         if cost < best_cost:  # the first of equal costs wins, as jnp.argmin
             best, best_cost = end, cost
     if best is None:  # every start ended at a non-finite cost: argmin of NaNs is the first
-        best = initial_guesses(apex, goal, h, hopper)[0]
+        best = initial_guesses(apex, goal, h, hopper, terrain)[0]
     th, s = _clip_p(best)
     kc_lo, kc_hi = kc_limits(hopper)
     kc = kc_lo + s * (kc_hi - kc_lo)
-    _, code, kd = trial(apex, goal, h, th, kc, hopper)
+    _, code, kd = trial(apex, goal, h, th, kc, hopper, terrain=terrain)
     kc_c = min(max(kc, kc_lo), kc_hi)
     # As jnp.clip: +-inf clips to the limits, NaN stays NaN (then kc is used).
     kd_c = kd if math.isnan(kd) else min(max(kd, RATIO_LO * kc_c), RATIO_HI * kc_c)
