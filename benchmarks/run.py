@@ -295,10 +295,9 @@ def bench_slip_sweep(jp, quick: bool):
     initial = grid[jaxhop.in_global_domain(grid, jp.tables(), Hopper())]
     n_all = initial.shape[0]
     # JAX: an evenly spaced subsample of the nominal sweep (1 024 of 4 470; --quick: 64): a
-    # SLIP run decides by a deadbeat solve at every apex, and runs that circle the goal box
-    # go on to max_steps = 60, which a vmapped chunk waits for, so the whole sweep would take
-    # tens of minutes here. The twin: an evenly spaced subsample of what JAX ran; both are
-    # compared per initial condition.
+    # SLIP run decides by two deadbeat solves at every apex, so the whole sweep takes 10-17
+    # minutes here (the README's results table has it). The twin: an evenly spaced
+    # subsample of what JAX ran; both are compared per initial condition.
     n_jax = 64 if quick else min(1024, n_all)
     runs = initial[np.linspace(0, n_all - 1, n_jax).round().astype(int)]
     first, warm, out = timed(lambda: run_batch(jp, runs, model="slip"), 1)

@@ -151,12 +151,16 @@ def decide_slip(apex, tables: PlanTables, hopper: Hopper, n_candidates: int = SL
     return valid[0], u[pick], inst[pick]
 
 
-def stride(apex, u, terrain: Terrain, hopper: Hopper, wind=0.0, model: str = "bhop"):
-    """One stride of the chosen model on the terrain: `(next_apex, code, foothold)`."""
+def stride(apex, u, terrain: Terrain, hopper: Hopper, wind=0.0, model: str = "bhop",
+           energy=None):
+    """One stride of the chosen model on the terrain: `(next_apex, code, foothold)`.
+
+    `energy` (SLIP only): the target apex energy for `bottom_kd`.
+    """
     if model == "slip":
         from ._slip import slip_stride
 
-        return slip_stride(apex, u, terrain, hopper, wind)
+        return slip_stride(apex, u, terrain, hopper, wind, energy=energy)
     return bhop_stride(apex, u, terrain, hopper, wind)
 
 
@@ -167,6 +171,55 @@ class RunConfig(eqx.Module):
     tolerance: jnp.ndarray = eqx.field(default_factory=lambda: jnp.full(3, 0.05))
     max_steps: int = eqx.field(static=True, default=60)
     model: str = eqx.field(static=True, default="bhop")
+    energy_feedback: bool = eqx.field(static=True, default=False)
+
+
+def _run_init(apex0, config: RunConfig):
+    """The carry of a run at its first apex: `(apex, code, steps, k, buffers)`."""
+    n = config.max_steps
+    apex0 = jnp.asarray(apex0, float)
+    buffers = (jnp.full((n + 1, 3), jnp.nan).at[0].set(apex0), jnp.full((n, 2), jnp.nan),
+               jnp.full((n,), -1, jnp.int32))
+    return (apex0, jnp.asarray(RUNNING), jnp.asarray(0, jnp.int32), jnp.asarray(0), buffers)
+
+
+def _run_live(carry, config: RunConfig):
+    _, code, _, k, _ = carry
+    return (code == RUNNING) & (k < config.max_steps)
+
+
+def _run_stride(carry, key, tables: PlanTables, true_terrain: Terrain, hopper: Hopper,
+                disturbance: Disturbance, config: RunConfig):
+    """One decision and stride of a live run (`run_one`'s loop body)."""
+    apex, code, steps, k, (apexes, feet, used) = carry
+    at_goal = jnp.all(jnp.abs(apex - config.goal) <= config.tolerance)
+    noise = jax.random.uniform(jax.random.fold_in(key, k), (3,), minval=-1.0, maxval=1.0)
+    measured = apex + noise * disturbance.sensor
+    found, u, a = decide(measured, tables, hopper, config.model)
+    energy = None
+    if config.model == "slip" and config.energy_feedback:
+        goal = tables.goals[a]
+        energy = hopper.m * (hopper.g * goal[1] + 0.5 * goal[2] ** 2)
+    nxt, s_code, foot = stride(apex, u, true_terrain, hopper, disturbance.wind, config.model,
+                               energy)
+    s_code = jnp.where(jnp.all(jnp.isfinite(nxt)) | (s_code != OK), s_code, SOLVER)
+    code = jnp.where(at_goal, SUCCESS, jnp.where(~found, OUTSIDE_DOMAIN,
+                                                 jnp.where(s_code == OK, RUNNING, s_code)))
+    stepping = ~at_goal & found
+    ok = stepping & (s_code == OK)
+    apexes = apexes.at[k + 1].set(jnp.where(ok, nxt, jnp.nan))
+    feet = feet.at[k].set(jnp.where(stepping, foot, jnp.nan))
+    used = used.at[k].set(jnp.where(stepping, a, -1).astype(jnp.int32))
+    apex = jnp.where(ok, nxt, apex)
+    return apex, code, steps + stepping.astype(jnp.int32), k + 1, (apexes, feet, used)
+
+
+def _run_result(carry, config: RunConfig):
+    """`(code, steps, apexes, footholds, policies)` of a finished (or cut-off) run."""
+    apex, code, steps, _, (apexes, feet, used) = carry
+    at_goal = jnp.all(jnp.abs(apex - config.goal) <= config.tolerance)
+    code = jnp.where(code == RUNNING, jnp.where(at_goal, SUCCESS, MAX_STEPS), code)
+    return code, steps, apexes, feet, used
 
 
 def run_one(apex0, key, tables: PlanTables, true_terrain: Terrain, hopper: Hopper,
@@ -181,39 +234,12 @@ def run_one(apex0, key, tables: PlanTables, true_terrain: Terrain, hopper: Hoppe
         `(max_steps + 1, 3)` apex sequence (NaN after the end), `(max_steps, 2)` footholds and
         the instantiated policy used at each stride (-1 after the end).
     """
-    def cond(carry):
-        _, code, _, k, _ = carry
-        return (code == RUNNING) & (k < config.max_steps)
-
-    def body(carry):
-        apex, code, steps, k, (apexes, feet, used) = carry
-        at_goal = jnp.all(jnp.abs(apex - config.goal) <= config.tolerance)
-        noise = jax.random.uniform(jax.random.fold_in(key, k), (3,), minval=-1.0, maxval=1.0)
-        measured = apex + noise * disturbance.sensor
-        found, u, a = decide(measured, tables, hopper, config.model)
-        nxt, s_code, foot = stride(apex, u, true_terrain, hopper, disturbance.wind,
-                                   config.model)
-        s_code = jnp.where(jnp.all(jnp.isfinite(nxt)) | (s_code != OK), s_code, SOLVER)
-        code = jnp.where(at_goal, SUCCESS, jnp.where(~found, OUTSIDE_DOMAIN,
-                                                     jnp.where(s_code == OK, RUNNING, s_code)))
-        stepping = ~at_goal & found
-        ok = stepping & (s_code == OK)
-        apexes = apexes.at[k + 1].set(jnp.where(ok, nxt, jnp.nan))
-        feet = feet.at[k].set(jnp.where(stepping, foot, jnp.nan))
-        used = used.at[k].set(jnp.where(stepping, a, -1).astype(jnp.int32))
-        apex = jnp.where(ok, nxt, apex)
-        return apex, code, steps + stepping.astype(jnp.int32), k + 1, (apexes, feet, used)
-
-    n = config.max_steps
-    apex0 = jnp.asarray(apex0, float)
-    buffers = (jnp.full((n + 1, 3), jnp.nan).at[0].set(apex0), jnp.full((n, 2), jnp.nan),
-               jnp.full((n,), -1, jnp.int32))
     # A while loop, not a scan: a batch stops when its longest run ends.
-    init = (apex0, jnp.asarray(RUNNING), jnp.asarray(0, jnp.int32), jnp.asarray(0), buffers)
-    apex, code, steps, _, (apexes, feet, used) = jax.lax.while_loop(cond, body, init)
-    at_goal = jnp.all(jnp.abs(apex - config.goal) <= config.tolerance)
-    code = jnp.where(code == RUNNING, jnp.where(at_goal, SUCCESS, MAX_STEPS), code)
-    return code, steps, apexes, feet, used
+    carry = jax.lax.while_loop(
+        lambda c: _run_live(c, config),
+        lambda c: _run_stride(c, key, tables, true_terrain, hopper, disturbance, config),
+        _run_init(apex0, config))
+    return _run_result(carry, config)
 
 
 def _batch(apex0, key, index, tables, true_terrain, hopper, disturbance, config):
@@ -241,7 +267,8 @@ def in_global_domain(apexes, tables: PlanTables, hopper: Hopper) -> np.ndarray:
 def run_batch(plan: Plan, apex0, *, key=None, true_terrain: Terrain | None = None,
               disturbance: Disturbance | None = None, goal=None, max_steps: int = 60,
               tolerance=None, chunk: int | None = None, progress: bool = False,
-              checkpoint: str | None = None, model: str = "bhop"):
+              checkpoint: str | None = None, model: str = "bhop", pool: bool | None = None,
+              energy_feedback: bool = False):
     """Run many initial apexes through the reactive controller.
 
     The batch is cut into chunks of `CHUNK` runs (smaller batches: the next power of two), the
@@ -257,6 +284,11 @@ def run_batch(plan: Plan, apex0, *, key=None, true_terrain: Terrain | None = Non
     finished chunks and computes only the rest, so an interrupted sweep loses at most the
     chunks in flight.
 
+    With `pool` (the default for `model="slip"`), the runs go through a pool of
+    `POOL_LANES` lanes per device instead, refilled between strides (`_pool_runs`): no run
+    waits for a longer one. Chunks then only set what is checkpointed and what each
+    `jax.distributed` process runs; results are the same run for run.
+
     Returns:
         dict of NumPy arrays: `code, steps, apexes, footholds, policies`.
     """
@@ -268,7 +300,8 @@ def run_batch(plan: Plan, apex0, *, key=None, true_terrain: Terrain | None = Non
     disturbance = Disturbance() if disturbance is None else disturbance
     config = RunConfig(goal=jnp.asarray(plan.goal if goal is None else goal, float),
                        tolerance=jnp.full(3, 0.05) if tolerance is None
-                       else jnp.asarray(tolerance, float), max_steps=max_steps, model=model)
+                       else jnp.asarray(tolerance, float), max_steps=max_steps, model=model,
+                       energy_feedback=energy_feedback)
     devices = jax.local_devices()
     if chunk is None:
         full = SLIP_CHUNK if model == "slip" else CHUNK
@@ -279,8 +312,10 @@ def run_batch(plan: Plan, apex0, *, key=None, true_terrain: Terrain | None = Non
                                                      disturbance, config, chunk))
     pending = []
     consts = (tables, true_terrain, plan.hopper, disturbance, config)
-    on_device = {}  # the plan's tables are large: copy them to each device once, not per chunk
     mine = process_chunks(-(-n // chunk))
+    if model == "slip" if pool is None else pool:
+        return _run_pool(apex0, key, consts, config, n, chunk, mine, store, progress)
+    on_device = {}  # the plan's tables are large: copy them to each device once, not per chunk
     for i, start in enumerate(range(0, n, chunk)):
         if i not in mine:
             continue  # another process's chunk (jax.distributed)
@@ -472,3 +507,135 @@ def sweep(plan: Plan, *, initial=None, key=None, true_terrain: Terrain | None = 
                        disturbance=disturbance, max_steps=max_steps, tolerance=tolerance,
                        chunk=chunk, progress=progress, checkpoint=checkpoint, model=model)
     return summarize(result, time.perf_counter() - t0), initial, result
+
+
+# --- SLIP runs: a pool of lanes refilled between strides ----------------------------------
+# A vmapped while loop runs until the longest run of its chunk ends: with SLIP strides (a
+# deadbeat solve each) a chunk holding one run that loops to max_steps costs 60 strides
+# per lane where most runs need about 12. So SLIP runs go through a pool instead: every
+# device steps POOL_LANES runs by one stride (`_run_stride`, vmapped), the host retires
+# the runs that ended and puts the next ones in their lanes (one host thread per device,
+# one shared queue). Lanes with nothing to run repeat a live run of their device (same
+# cost, results discarded). The lane count is fixed, so one compilation per device serves
+# every sweep.
+POOL_LANES = 8
+
+
+def _pool_step(carry, index, key, tables, true_terrain, hopper, disturbance, config):
+    keys = jax.vmap(jax.random.fold_in, (None, 0))(key, index)
+    carry = jax.vmap(_run_stride, (0, 0, None, None, None, None, None))(
+        carry, keys, tables, true_terrain, hopper, disturbance, config)
+    live = jax.vmap(lambda c: _run_live(c, config))(carry)
+    final = jax.vmap(lambda c: _run_result(c, config)[0])(carry)
+    return carry, live, final
+
+
+_pool_step_jit = jax.jit(_pool_step)
+
+
+def _pool_runs(runs, apex0, key, consts, config: RunConfig, on_done, lanes=POOL_LANES):
+    """Run `runs` (indices into `apex0`) through the pool; `on_done(run, fields)` is called
+    as each ends, with `fields` in `RUN_FIELDS` order.
+
+    One host thread per device, all taking runs from one queue: the devices step (and, the
+    first time, compile) concurrently, and none waits for another.
+    """
+    import threading
+    from collections import deque
+    from concurrent.futures import ThreadPoolExecutor
+
+    shapes = jax.eval_shape(_run_init, jnp.zeros(3), config)
+    treedef = jax.tree_util.tree_structure(shapes)
+    queue, lock, stop = deque(runs), threading.Lock(), threading.Event()
+
+    def worker(dev):
+        on_dev = jax.device_put((key,) + tuple(consts), dev)
+        active = []  # (run, carry leaves)
+        while not stop.is_set():
+            with lock:
+                while queue and len(active) < lanes:
+                    run = queue.popleft()
+                    active.append((run, jax.tree_util.tree_leaves(
+                        _init_host(apex0[run], config, shapes))))
+            if not active:
+                return
+            # Spare lanes repeat live runs (same cost; their results are discarded).
+            pick = [j % len(active) for j in range(lanes)]
+            batch = [np.stack([active[p][1][i] for p in pick])
+                     for i in range(treedef.num_leaves)]
+            index = np.asarray([active[p][0] for p in pick])
+            carry = jax.tree_util.tree_unflatten(treedef, jax.device_put(batch, dev))
+            carry, live, final = _pool_step_jit(carry, jax.device_put(index, dev), *on_dev)
+            leaves = [np.asarray(x) for x in jax.tree_util.tree_leaves(carry)]
+            live, final = np.asarray(live), np.asarray(final)
+            still, ended = [], []
+            for slot in range(len(active)):
+                run, mine = active[slot][0], [x[slot] for x in leaves]
+                if live[slot]:
+                    still.append((run, mine))
+                else:
+                    _, _, steps, _, (apexes, feet, used) = jax.tree_util.tree_unflatten(
+                        treedef, mine)
+                    ended.append((run, (final[slot], steps, apexes, feet, used)))
+            active = still
+            with lock:
+                for run, fields in ended:
+                    on_done(run, fields)
+
+    devices = jax.local_devices()
+    with ThreadPoolExecutor(len(devices)) as ex:
+        futures = [ex.submit(worker, dev) for dev in devices]
+        try:
+            for f in futures:
+                f.result()
+        finally:
+            stop.set()
+
+
+def _run_pool(apex0, key, consts, config, n, chunk, mine, store, progress):
+    """`run_batch` for SLIP: chunks (checkpointing, `jax.distributed` shares) as there, the
+    runs themselves through `_pool_runs`."""
+    spans = [(start, min(start + chunk, n)) for i, start in enumerate(range(0, n, chunk))
+             if i in mine]
+    shapes = jax.eval_shape(_run_result, jax.eval_shape(_run_init, jnp.zeros(3), config),
+                            config)
+    out = {k: np.zeros((n,) + s.shape, s.dtype) for k, s in zip(RUN_FIELDS, shapes)}
+    left = {}
+    for start, stop in spans:
+        done = store.load(start, stop) if store else None
+        if done is None:
+            left[start] = stop - start
+        else:
+            for name, arr in zip(RUN_FIELDS, done):
+                out[name][start:stop] = arr
+    todo = [r for start in left for r in range(start, start + left[start])]
+    bar = tqdm(total=len(todo), desc="runs", unit="run", disable=not progress,
+               file=sys.stderr, leave=False)
+
+    def on_done(run, fields):
+        for name, value in zip(RUN_FIELDS, fields):
+            out[name][run] = value
+        start = run - run % chunk
+        left[start] -= 1
+        if left[start] == 0 and store:
+            stop = min(start + chunk, n)
+            store.save(start, stop, [out[name][start:stop] for name in RUN_FIELDS])
+        bar.update(1)
+
+    if todo:
+        _pool_runs(todo, apex0, key, consts, config, on_done)
+    bar.close()
+    parts = {k: [out[k][a:b] for a, b in spans] for k in RUN_FIELDS}
+    return _combine(parts, spans, n, lambda: [np.zeros((1,) + s.shape, s.dtype)
+                                              for s in shapes])
+
+
+def _init_host(apex0, config, shapes):
+    """`_run_init` in NumPy (no device round trip per refilled lane)."""
+    n = config.max_steps
+    apexes = np.full((n + 1, 3), np.nan)
+    apexes[0] = apex0
+    init = (np.asarray(apex0, float), RUNNING, 0, 0,
+            (apexes, np.full((n, 2), np.nan), np.full((n,), -1)))
+    return jax.tree_util.tree_map(lambda v, s: np.asarray(v, s.dtype).reshape(s.shape),
+                                  init, shapes)

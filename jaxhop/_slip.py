@@ -146,9 +146,34 @@ def decompress(x_b, kd, hopper: Hopper, tol: Tolerances = STRIDE_TOL):
     return _phase(x_b, kd, hopper, _liftoff, tol)
 
 
-def stance(th_td, v_td, kc, kd, hopper: Hopper, tol: Tolerances = STRIDE_TOL) -> Stance:
-    """Both stance phases of eq 10, from touchdown to liftoff, relative to the foot."""
+# Limits of kd / kc (SPEC section 13).
+KD_RATIO = (0.5, 2.0)
+
+
+def bottom_kd(x_b, h, kc, energy, hopper: Hopper):
+    """Eq 12 at the bottom of the stance: the `kd` that lifts off with apex energy `energy`.
+
+    `energy = m g z + m ydot^2 / 2` of the target apex (world frame). The mechanical energy
+    with the compression spring, measured at the bottom (`x_b`, foot at height `h`), is
+    what the stance carries; switching to `kd` adds `(kd - kc) (rho0 - rho_b)^2 / 2`.
+    Clipped to `KD_RATIO`.
+    """
+    p, v = _cartesian(x_b)
+    m, g = hopper.m, hopper.g
+    now = m * g * (h + p[1]) + 0.5 * m * jnp.dot(v, v) + 0.5 * kc * (hopper.rho0 - x_b[0]) ** 2
+    kd = kc + 2.0 * (energy - now) / (x_b[0] - hopper.rho0) ** 2
+    return jnp.clip(kd, KD_RATIO[0] * kc, KD_RATIO[1] * kc)
+
+
+def stance(th_td, v_td, kc, kd, hopper: Hopper, tol: Tolerances = STRIDE_TOL, energy=None,
+           h=0.0) -> Stance:
+    """Both stance phases of eq 10, from touchdown to liftoff, relative to the foot.
+
+    With a finite `energy`, `kd` is replaced by `bottom_kd` (foot at height `h`).
+    """
     x_b, code_c = compress(th_td, v_td, kc, hopper, tol)
+    if energy is not None:
+        kd = jnp.where(jnp.isfinite(energy), bottom_kd(x_b, h, kc, energy, hopper), kd)
     x_lo, code_d = decompress(x_b, kd, hopper, tol)
     code = jnp.where(code_c != OK, code_c, code_d)
     p_lo, v_lo = _cartesian(x_lo)
@@ -213,7 +238,7 @@ def _rise_clear(p_lo, v_lo, terrain: Terrain, hopper: Hopper, wind):
 
 
 def slip_stride(apex, u, terrain: Terrain, hopper: Hopper, wind=0.0,
-                tol: Tolerances = STRIDE_TOL):
+                tol: Tolerances = STRIDE_TOL, energy=None):
     """One SLIP stride on the terrain: descent, touchdown, stance, rise to the next apex.
 
     The foot rides at `COM + rho0 (sin th_td, -cos th_td)` from apex and lands on the first
@@ -225,6 +250,9 @@ def slip_stride(apex, u, terrain: Terrain, hopper: Hopper, wind=0.0,
     Arguments:
         apex: `(y, z, ydot)`.
         u: `(th_td, kc, kd)`.
+        energy: if given and finite, the target apex energy: `kd` is then computed at the
+            bottom of the stance from the actual state (`bottom_kd`, eq 12 with the
+            compression that happened), not taken from `u`.
 
     Returns:
         `(next_apex, code, foothold)` with `foothold = (y_foot, h)`.
@@ -236,7 +264,7 @@ def slip_stride(apex, u, terrain: Terrain, hopper: Hopper, wind=0.0,
     landed = code == OK
     # Failed descents run a benign dummy stance instead of an arbitrary one.
     st = stance(jnp.where(landed, th, 0.0), jnp.where(landed, v_td, jnp.array([0.0, -1.0])),
-                kc, kd, hopper, tol)
+                kc, kd, hopper, tol, energy, h)
     foot = jnp.stack([y_foot, h])
     p_lo = st.p_lo + foot
     y_td = y_foot - hopper.rho0 * jnp.sin(th)

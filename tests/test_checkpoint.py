@@ -75,6 +75,40 @@ def test_interrupted_sweep_resumes(setup, tmp_path, monkeypatch):
     assert len(computed) == n_chunks
 
 
+def test_interrupted_pool_sweep_resumes(setup, tmp_path, monkeypatch):
+    # The lane pool (SLIP sweeps' executor) saves a chunk when its last run ends; an
+    # interrupted pool sweep resumes with only the missing runs and equals the chunked one.
+    plan, init = setup
+    kw = dict(key=jax.random.key(3), disturbance=disturbance_for("sensor"), chunk=16)
+    full = run_batch(plan, init, **kw)
+
+    saved = []
+    real_save = _execute._ChunkStore.save
+
+    def interrupt_after_two(self, start, stop, arrays):
+        if len(saved) == 2:
+            raise KeyboardInterrupt
+        real_save(self, start, stop, arrays)
+        saved.append(stop - start)
+
+    monkeypatch.setattr(_execute._ChunkStore, "save", interrupt_after_two)
+    with pytest.raises(KeyboardInterrupt):
+        run_batch(plan, init, checkpoint=str(tmp_path), pool=True, **kw)
+    monkeypatch.setattr(_execute._ChunkStore, "save", real_save)
+
+    computed = []
+    real_pool = _execute._pool_runs
+
+    def counting(runs, *args, **kwargs):
+        computed.append(len(runs))
+        return real_pool(runs, *args, **kwargs)
+
+    monkeypatch.setattr(_execute, "_pool_runs", counting)
+    resumed = run_batch(plan, init, checkpoint=str(tmp_path), pool=True, **kw)
+    assert computed == [len(init) - sum(saved)] and len(saved) == 2
+    _same(full, resumed)
+
+
 @pytest.mark.slow
 def test_sigkill_then_rerun_from_cli(tmp_path):
     env = dict(os.environ, JAXHOP_CACHE=str(tmp_path / "cache"))

@@ -15,9 +15,17 @@ grid = jaxhop.sweep_grid(plan.terrain, dy=0.1, dz=0.1)
 init = grid[jaxhop.in_global_domain(grid, plan.tables(), plan.hopper)]
 r = jaxhop.run_batch(plan, init, key=jax.random.key(5),
                      disturbance=jaxhop.disturbance_for("sensor"))
+# The same runs through the lane pool (one host thread per device, lanes refilled
+# between strides), which SLIP sweeps use.
+p = jaxhop.run_batch(plan, init, key=jax.random.key(5),
+                     disturbance=jaxhop.disturbance_for("sensor"), pool=True)
 print(json.dumps({"devices": len(jax.devices()), "code": r["code"].tolist(),
                   "steps": r["steps"].tolist(),
-                  "last": np.nan_to_num(r["apexes"][:, -1]).round(12).tolist()}))
+                  "last": np.nan_to_num(r["apexes"][:, -1]).round(12).tolist(),
+                  "pool_code": p["code"].tolist(), "pool_steps": p["steps"].tolist(),
+                  "pool_policies": p["policies"].tolist(), "policies": r["policies"].tolist(),
+                  "pool_feet": np.nan_to_num(p["footholds"]).round(9).tolist(),
+                  "feet": np.nan_to_num(r["footholds"]).round(9).tolist()}))
 """
 
 
@@ -36,3 +44,8 @@ def test_four_devices_equal_one(tmp_path):
     assert len(one["code"]) > 100
     assert one["code"] == four["code"] and one["steps"] == four["steps"]
     assert one["last"] == four["last"]
+    # The lane pool gives the same runs, stride for stride, on one device and on four.
+    assert len(set(one["steps"])) > 3  # runs of many lengths: lanes are refilled
+    for res in (one, four):
+        assert res["pool_code"] == one["code"] and res["pool_steps"] == one["steps"]
+        assert res["pool_policies"] == one["policies"] and res["pool_feet"] == one["feet"]

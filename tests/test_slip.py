@@ -141,6 +141,34 @@ def test_equal_stiffness_conserves_apex_energy():
     assert np.max(rel[ok]) < 1e-8
 
 
+def test_bottom_kd_lifts_off_with_the_target_energy():
+    # `energy=` replaces kd by eq 12 evaluated at the actual bottom: whatever the ground
+    # height (0 here, or 0.1 m lower than a planner would think), the next apex carries the
+    # target energy, unless the kd limits clip it.
+    apex, u = random_strides(4, 32)
+    def energy(a):
+        return 0.5 * HOP.m * a[..., 2] ** 2 + HOP.m * HOP.g * a[..., 1]
+
+    target = energy(apex) * np.random.default_rng(5).uniform(0.9, 1.1, 32)
+    stride = jax.jit(jax.vmap(lambda a, v, e, t: slip_stride(a, v, t, HOP, energy=e),
+                              (0, 0, 0, None)))
+    for ground in (0.0, -0.1):
+        terrain = make_terrain([(-20.0, 20.0, ground)])
+        nxt, code, _ = stride(jnp.asarray(apex), jnp.asarray(u), jnp.asarray(target), terrain)
+        nxt, code = np.asarray(nxt), np.asarray(code)
+        ok = code == OK
+        assert ok.sum() >= 12
+        rel = np.abs(energy(nxt) - target) / target
+        # Strides that needed kd outside [0.5, 2] kc end elsewhere; most do not.
+        hit = rel < 1e-8
+        assert hit[ok].mean() > 0.6
+    # A NaN target keeps u's kd.
+    plain = jax.jit(jax.vmap(slip_stride, (0, 0, None, None)))(
+        jnp.asarray(apex), jnp.asarray(u), FLAT, HOP)[0]
+    nan = stride(jnp.asarray(apex), jnp.asarray(u), jnp.full(32, jnp.nan), FLAT)[0]
+    np.testing.assert_allclose(np.asarray(nan), np.asarray(plain), rtol=1e-12, atol=1e-12)
+
+
 GRAD_APEX = jnp.array([0.0, 1.3, 1.2])
 GRAD_U = jnp.array([0.15, 30.0, 36.0])  # (th_td, kc / MG, kd / MG): all O(1) for one FD step
 TIGHT = Tolerances(1e-12, 1e-12)
