@@ -20,9 +20,10 @@ Benchmarks:
   equal).
 - `decision`: latency of one reactive decision (first match, deadbeat, clip) for one
   measured apex; JAX: `jit(decide)` on a single state.
-- `slip_strides`: 4 096 random SLIP strides over flat ground; JAX `vmap(slip_stride)`
-  (diffrax), twin `solve_ivp` with events in a loop over all of them (`--quick`: every 4-th,
-  scaled per item; codes and apexes are checked).
+- `slip_strides`: 4 096 random SLIP strides over flat ground; JAX `_slip.slip_strides`
+  (diffrax, vmapped, chunks of 512 over the CPU devices), twin `solve_ivp` with events in
+  a loop over all of them (`--quick`: every 4-th, scaled per item; codes and apexes are
+  checked).
 - `slip_deadbeat`: 1 024 deadbeat solves to reachable targets; JAX `vmap(deadbeat_slip)`
   (Gauss-Newton through diffrax), twin the same iteration with a finite-difference Jacobian
   on every 32-th target (`--quick`: every 128-th), scaled per item.
@@ -224,7 +225,7 @@ def random_slip_strides(seed, n):
 
 
 def bench_slip_strides(quick: bool):
-    from jaxhop._slip import slip_stride
+    from jaxhop._slip import slip_strides
     from jaxhop._terrain import make_terrain
     from jaxhop.reference import _slip as RS
 
@@ -232,9 +233,8 @@ def bench_slip_strides(quick: bool):
     blocks = [(-20.0, 20.0, 0.0)]
     terrain, r_terrain = make_terrain(blocks), R.Terrain.from_blocks(blocks)
     apex, u = random_slip_strides(0, n)
-    fn = jax.jit(jax.vmap(slip_stride, (0, 0, None, None)))
-    ja, ju = jnp.asarray(apex), jnp.asarray(u)
-    first, warm, (nxt, code, _) = timed(lambda: fn(ja, ju, terrain, Hopper()), 2 if quick else 3)
+    first, warm, (nxt, code, _) = timed(lambda: slip_strides(apex, u, terrain, Hopper()),
+                                        2 if quick else 3)
     nxt, code = np.asarray(nxt), np.asarray(code)
     every = 4 if quick else 1
     sub = np.arange(0, n, every)
@@ -247,7 +247,8 @@ def bench_slip_strides(quick: bool):
     which = (f"all {n} strides" if every == 1
              else f"every {every}-th stride ({sub.size}), scaled per item")
     note = (f"random strides over flat ground (apex y in [-1, 1], z in [1.1, 1.6], ydot in "
-            f"[-2.5, 2.5]; admissible controls); JAX vmap(slip_stride) (diffrax Tsit5), twin "
+            f"[-2.5, 2.5]; admissible controls); JAX slip_strides (vmap(slip_stride), diffrax "
+            f"Tsit5, chunks of 512 over {len(jax.local_devices())} devices), twin "
             f"solve_ivp DOP853 with events, a Python loop over "
             f"{which}, both rtol = atol = 1e-10; {int((code == 0).sum())} complete; codes "
             f"identical on the twin's strides: {bool(np.array_equal(code[sub], r_code))}; max apex "

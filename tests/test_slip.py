@@ -141,6 +141,22 @@ def test_equal_stiffness_conserves_apex_energy():
     assert np.max(rel[ok]) < 1e-8
 
 
+def test_slip_strides_in_device_chunks_equal_single_strides():
+    from jaxhop._slip import slip_strides
+
+    apex, u = random_strides(6, 40)
+    nxt, code, foot = slip_strides(apex, u, FLAT, HOP)
+    assert nxt.shape == (40, 3) and code.shape == (40,) and foot.shape == (40, 2)
+    single = jax.jit(slip_stride)
+    for i in range(0, 40, 7):
+        n1, c1, f1 = single(jnp.asarray(apex[i]), jnp.asarray(u[i]), FLAT, HOP)
+        assert int(c1) == code[i]
+        np.testing.assert_allclose(nxt[i], np.asarray(n1), rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(foot[i], np.asarray(f1), rtol=1e-12, atol=1e-12)
+    with pytest.raises(ValueError, match="must both be"):
+        slip_strides(apex, u[:, :2], FLAT, HOP)
+
+
 def test_bottom_kd_lifts_off_with_the_target_energy():
     # `energy=` replaces kd by eq 12 evaluated at the actual bottom: whatever the ground
     # height (0 here, or 0.1 m lower than a planner would think), the next apex carries the
