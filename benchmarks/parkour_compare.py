@@ -82,7 +82,9 @@ def main(argv=None) -> int:
     ap.add_argument("--slip-noise", default="none", help="disturbances for SLIP runs")
     ap.add_argument("--mppc-seeds", type=int, default=8)
     ap.add_argument("--rebuild", default="mppc-hw-dynamic-1,mppc-hw-disturbances",
-                    help="courses whose first snapshot is also rebuilt in full")
+                    help="courses whose first snapshot is also rebuilt in full (with "
+                    "--timing: which snapshots to rebuild: `all`, the first N, `worstK`, "
+                    "the K slowest updates, or a list `1:3:4`)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--cache", default=None, help="directory to keep built plans in")
     ap.add_argument("--json")
@@ -180,20 +182,41 @@ def main(argv=None) -> int:
     return 0
 
 
+def identical(a, b) -> bool:
+    """Two course plans with the same deployment (`same_deployment`: policies, goals to
+    1e-12, order) and, exactly, the same goals, margins, safety, robustness, goal policies
+    and prepares matrix."""
+    from jaxhop.parkour._run import same_deployment
+
+    pa, pb = a.plan, b.plan
+    return bool(same_deployment(a, b) and np.array_equal(pa.goals, pb.goals)
+                and np.array_equal(pa.margin, pb.margin) and np.array_equal(pa.safety, pb.safety)
+                and np.array_equal(pa.robustness, pb.robustness)
+                and np.array_equal(pa.is_goal, pb.is_goal)
+                and (pa.prepares != pb.prepares).nnz == 0)
+
+
 def timing(args) -> int:
     """Per dynamic course: the update chain (after an untimed warm-up chain, so that no
-    compilation is timed) and full rebuilds of the first snapshots, wall and CPU time,
-    and whether each rebuild's deployment equals the update's."""
+    compilation is timed) and full rebuilds of the snapshots (`--rebuild N`: the first N,
+    `all`: every one, `worstK`: the K slowest updates, `1:3:4`: those; each after an
+    untimed build with the same padded shapes, so that none includes compilation), wall
+    and CPU time, the ratio per snapshot, and whether each rebuild is identical to the
+    update (`identical`)."""
     from jaxhop.parkour import build_course_plan, course_map
-    from jaxhop.parkour._run import COURSE_GRID, same_deployment
+    from jaxhop.parkour._build import _Context
+    from jaxhop.parkour._run import COURSE_GRID
 
     hop = leg_hopper()
     tm = leg_templates(hop)
     out = {"device": device_name(), "courses": []}
-    n_rebuild = int(args.rebuild) if args.rebuild.isdigit() else 1
+    if args.json and os.path.exists(args.json):  # resume: keep the courses measured before
+        with open(args.json) as f:
+            out["courses"] = json.load(f).get("courses", [])
+    done = {c["course"] for c in out["courses"]}
     for name in args.courses.split(","):
         course = load_course(name)
-        if not course.snapshots:
+        if not course.snapshots or name in done:
             continue
         cps = _plans(course, hop, tm, 0, args.cache, print)
         maps = [course_map(course, env, hop) for _, env in course.snapshots]
@@ -208,26 +231,60 @@ def timing(args) -> int:
             wall.append(time.perf_counter() - t0)
             cpu.append(time.process_time() - c0)
             plans.append(prev)
-        rb_wall, rb_cpu, equal = [], [], []
-        for m, inc in list(zip(maps, plans))[:n_rebuild]:
+        picked = _rebuilt(args.rebuild, cpu)
+        rb_wall, rb_cpu, equal, rb_stages, shapes = [], [], [], [], set()
+        for k in picked:
+            m, inc = maps[k], plans[k]
+            ctx = _Context(m, tm, hop)
+            shape = (ctx.jterrain.n_blocks, int(ctx.jtable.centre.shape[0]))
+            if shape not in shapes:  # compile the full build's chunk sizes for these shapes
+                build_course_plan(m, tm, hop, grid=COURSE_GRID)
+                shapes.add(shape)
             t0, c0 = time.perf_counter(), time.process_time()
             full = build_course_plan(m, tm, hop, grid=COURSE_GRID)
             rb_wall.append(time.perf_counter() - t0)
             rb_cpu.append(time.process_time() - c0)
-            equal.append(same_deployment(full, inc))
+            equal.append(identical(full, inc))
+            rb_stages.append(full.stats["stage_cpu_seconds"])
+            print(f"{name} snapshot {k + 1}: update {wall[k]:.2f} s (cpu {cpu[k]:.2f}), rebuild "
+                  f"{rb_wall[-1]:.1f} s (cpu {rb_cpu[-1]:.1f}), ratio {rb_wall[-1] / wall[k]:.1f} "
+                  f"(cpu {rb_cpu[-1] / cpu[k]:.1f}), identical {equal[-1]}", flush=True)
         row = {"course": name, "n_snapshots": len(maps),
                "n_policies": int(base.stats["n_instantiated"]),
-               "update_s": wall, "update_cpu_s": cpu, "rebuild_s": rb_wall,
+               "update_s": wall, "update_cpu_s": cpu,
+               "rebuilt": [k + 1 for k in picked], "rebuild_s": rb_wall,
                "rebuild_cpu_s": rb_cpu, "rebuild_equal": equal,
-               "recomputed_pairs": [int(p.stats["recomputed_pairs"]) for p in plans]}
+               "ratio": [rb_wall[n] / wall[k] for n, k in enumerate(picked)],
+               "ratio_cpu": [rb_cpu[n] / cpu[k] for n, k in enumerate(picked)],
+               "rebuild_stage_cpu_s": rb_stages,
+               "recomputed_pairs": [int(p.stats["recomputed_pairs"]) for p in plans],
+               "new_situated": [int(p.stats["new_situated"]) for p in plans],
+               "recomputed_robustness": [int(p.stats["recomputed_robustness"]) for p in plans],
+               "update_stage_cpu_s": [p.stats["stage_cpu_seconds"] for p in plans]}
         out["courses"].append(row)
         print(f"{name}: update median {np.median(wall):.2f} s (cpu {np.median(cpu):.2f}), "
-              f"rebuild {np.mean(rb_wall):.1f} s (cpu {np.mean(rb_cpu):.1f}), equal {equal}",
-              flush=True)
+              f"max {max(wall):.2f} s (cpu {max(cpu):.2f}); rebuild {np.mean(rb_wall):.1f} s "
+              f"(cpu {np.mean(rb_cpu):.1f}); min ratio {min(row['ratio'], default=0):.1f} "
+              f"(cpu {min(row['ratio_cpu'], default=0):.1f}); identical {equal}", flush=True)
         if args.json:
             with open(args.json, "w") as f:
                 json.dump(out, f, indent=1)
     return 0
+
+
+def _rebuilt(spec: str, update_cpu: list) -> list:
+    """Snapshots (0-based) to rebuild for `--timing --rebuild spec`: `all`, the first `N`,
+    `worstK`, the K whose updates took the most CPU time (the lowest ratios, as a course's
+    rebuilds cost about the same), or a list `a:b:c` of snapshots (1-based)."""
+    n = len(update_cpu)
+    if spec == "all":
+        return list(range(n))
+    if ":" in spec:
+        return sorted({int(k) - 1 for k in spec.split(":") if k and 0 < int(k) <= n})
+    if spec.startswith("worst"):
+        k = int(spec[5:] or 1)
+        return sorted(int(i) for i in np.argsort(update_cpu)[::-1][:k])
+    return list(range(min(int(spec) if spec.isdigit() else 1, n)))
 
 
 def _failures(r) -> str:

@@ -209,6 +209,146 @@ def dataclass_replace(obj, **kw):
     return dataclasses.replace(obj, **kw)
 
 
+# A taller obstacle (its top and margin bands above `h + rho0`: it binds rises too) moves
+# by 2 mm while a restricted area moves; then it is lowered and a low obstacle removed;
+# then nothing changes.
+TALL = {
+    "name": "tall", "start": 0.0, "goal": 1.2,
+    "margins": {"horizontal": 0.03, "vertical": 0.05},
+    "obstacles": [{"position": 0.5, "width": 0.1, "height": 0.25},
+                  {"position": 0.85, "width": 0.08, "height": 0.05}],
+    "restricted": [{"position": 1.0, "width": 0.06}],
+    "snapshots": [
+        {"from_jump": 2, "obstacles": [{"position": 0.502, "width": 0.1, "height": 0.25},
+                                       {"position": 0.85, "width": 0.08, "height": 0.05}],
+         "restricted": [{"position": 1.03, "width": 0.06}]},
+        {"from_jump": 3, "obstacles": [{"position": 0.502, "width": 0.1, "height": 0.22}],
+         "restricted": [{"position": 1.03, "width": 0.06}]},
+        {"from_jump": 4, "obstacles": [{"position": 0.502, "width": 0.1, "height": 0.22}],
+         "restricted": [{"position": 1.03, "width": 0.06}]},
+    ],
+}
+
+
+def _identical(a, b) -> bool:
+    pa, pb = a.plan, b.plan
+    return bool(same_deployment(a, b) and np.array_equal(pa.goals, pb.goals)
+                and np.array_equal(pa.margin, pb.margin) and np.array_equal(pa.safety, pb.safety)
+                and np.array_equal(pa.robustness, pb.robustness)
+                and np.array_equal(pa.is_goal, pb.is_goal)
+                and (pa.prepares != pb.prepares).nnz == 0)
+
+
+def _tall_maps():
+    course = course_from_dict(TALL)
+    hop = leg_hopper()
+    envs = [course.environment] + [e for _, e in course.snapshots]
+    return [course_map(course, e, hop) for e in envs], hop, leg_templates(hop)
+
+
+def test_update_dependency_tests_are_sufficient():
+    # The tests that let an update keep old results, checked directly on the tall
+    # obstacle's 2 mm move: a pair between kept policies whose collision clauses no
+    # changed block can bind has the same `pair_goal` on both maps, and an apex whose
+    # descent meets no changed block has the same `candidate_situated` result.
+    from jaxhop.parkour import _build as B
+
+    maps, hop, tm = _tall_maps()
+    old, new = (B._Context(m, tm, hop) for m in maps[:2])
+    blocks, block_map = B._changed(maps[0], maps[1])
+    assert np.any(blocks[:, 2] > hop.rho0)  # the moved obstacle binds rises from the floor
+
+    class Prev:
+        pass
+
+    prev = Prev()
+    prev.plan = Prev()
+    prev.plan.terrain, prev.plan.templates = maps[0].plan, tm
+    old_to_new = B._situated_map(prev, new, block_map)
+    new_to_old = np.full(new.n_sit, -1)
+    new_to_old[old_to_new[old_to_new >= 0]] = np.nonzero(old_to_new >= 0)[0]
+    kept = (new_to_old >= 0) & new.sit_allowed
+    row_aff, col_aff = new.affected(blocks)
+    rows, cols = new.candidate_pairs(row_aff & kept, col_aff & kept)
+    sel = kept[rows] & kept[cols]
+    rows, cols = rows[sel], cols[sel]
+    binds = new.pair_binds(rows, cols, blocks)
+    assert binds.any() and (~binds).any()
+    rng = np.random.default_rng(0)
+    pick = rng.choice(np.nonzero(~binds)[0], min(1500, int((~binds).sum())), replace=False)
+
+    def goals(ctx, r, c):
+        box = np.stack([np.maximum(ctx.gf_world[r, 1:, 0], ctx.d_world[c, 1:, 0]),
+                        np.minimum(ctx.gf_world[r, 1:, 1], ctx.d_world[c, 1:, 1])], axis=2)
+        return B._padded(lambda *a: B._pairs_jit(*a, ctx.jtable, tm, ctx.jterrain, hop, GRID),
+                         r.size, B._PAIR_CHUNK, ctx.t_of[r], ctx.s_of[r], ctx.t_of[c],
+                         ctx.s_of[c], box, small=True)
+
+    f1, g1, m1, d1 = goals(new, rows[pick], cols[pick])
+    f0, g0, m0, d0 = goals(old, new_to_old[rows[pick]], new_to_old[cols[pick]])
+    assert np.array_equal(f0, f1) and f1.any()
+    assert np.array_equal(g0[f1], g1[f1]) and np.array_equal(m0[f1], m1[f1])
+    assert np.array_equal(d0[f1], d1[f1])
+    # Apexes around the change, with and without the probe box of safety sampling.
+    n = 3000
+    apex = np.stack([rng.uniform(0.1, 1.0, n), rng.uniform(0.2, 0.7, n),
+                     rng.uniform(-0.5, 1.0, n)], 1)
+    untouched = ~new.touched(apex, blocks)
+    assert untouched.any() and (~untouched).any()
+    assert np.all(new.touched(apex, blocks, new.probe) >= ~untouched)
+
+    def rows_of(ctx, a):
+        return B._padded(lambda g: B._rows_jit(g, ctx.jallowed, ctx.jtable, tm, ctx.jterrain,
+                                               hop), a.shape[0], B._ROW_CHUNK, a, small=True)
+
+    ids1, in1 = rows_of(new, apex[untouched])
+    ids0, in0 = rows_of(old, apex[untouched])
+    for a in range(ids1.shape[0]):
+        assert set(ids1[a][in1[a]]) == set(old_to_new[ids0[a][in0[a]]])
+
+
+@pytest.fixture(scope="module")
+def tall_plans():
+    maps, hop, tm = _tall_maps()
+    plans = [build_course_plan(maps[0], tm, hop, grid=GRID)]
+    for m in maps[1:]:
+        plans.append(build_course_plan(m, tm, hop, grid=GRID, previous=plans[-1]))
+    fulls = [build_course_plan(m, tm, hop, grid=GRID) for m in maps[1:]]
+    return plans, fulls
+
+
+@pytest.mark.slow
+def test_update_with_tall_obstacle_equals_full_rebuild(tall_plans):
+    plans, fulls = tall_plans
+    for inc, full in zip(plans[1:], fulls):
+        assert inc.stats["incremental"]
+        assert inc.stats["recomputed_pairs"] < full.stats["n_candidate_pairs"]
+        assert _identical(inc, full)
+    # Pairs between kept policies were recomputed (a changed block binds them) and kept.
+    first = plans[1].stats
+    assert first["instantiated_pairs_computed"] > 0
+    # Nothing changed: nothing is recomputed, the goal policies are kept.
+    last = plans[3].stats
+    assert last["changed_blocks"] == [] and last["recomputed_pairs"] == 0
+    assert last["recomputed_robustness"] == 0 and last["reused_goal_policies"]
+
+
+@pytest.mark.slow
+def test_course_deploy_equals_deploy(tall_plans):
+    # The course builder's queue (float keys, ties by index) gives `deploy`'s order, also
+    # when many keys tie.
+    from jaxhop._deploy import by_depth, by_robustness, by_safety, deploy
+    from jaxhop.parkour._build import _deploy
+
+    p = tall_plans[0][1].plan
+    args = (p.prepares, p.situated, p.safety, p.is_goal, p.robustness)
+    for pickbest in (by_robustness, by_depth, by_safety):
+        assert np.array_equal(_deploy(*args, pickbest), deploy(*args, pickbest))
+    ties = (p.prepares, p.situated, np.round(p.safety, 2) * 0, p.is_goal,
+            np.round(p.robustness * 3) / 3)
+    assert np.array_equal(_deploy(*ties), deploy(*ties))
+
+
 @pytest.mark.slow
 def test_reactive_runs_never_touch_forbidden_floor(small_plans):
     course, hop, cps, _ = small_plans

@@ -7,24 +7,30 @@ bands carry segments, so that `Plan.table()` stays consistent, but none of their
 policies is ever instantiated, prepared or deployed). It keeps what an update needs: every
 screened pair's result, the prepares rows and the robustness scores.
 
-`update_course_plan` takes such a plan and a new course map (a snapshot) and recomputes
-only what the change can affect. A *changed interval* is the extent of every block that is
-not in both maps with the same `(start, end, plan height, true height, kind)`. Then:
+With `previous`, `build_course_plan` updates such a plan for a new course map (a
+snapshot) and recomputes only what the change can affect. The *changed blocks* are every
+block that is not in both maps with the same `(start, end, plan height, true height,
+kind)`, old and new versions alike. Situated policies on unchanged blocks keep their
+segment (their ids are remapped); those on changed blocks are *new*. Then:
 
-* a pair `(i, j)` is recomputed iff its *dependency range* meets a changed interval: the
-  `y` overlap of the boxes of `Gf(i)` and `D(j)`, widened to the two segments (plus the
-  largest `|dy|` on `i`'s side). The collision clauses of a cell can only be bound by a
-  block that meets this range (docs/parkour_reactive.md has the argument); all other
-  pairs keep their screened result, goal, margins (segments of unchanged blocks keep their
-  place, so their ids are remapped);
-* a prepares row `P[a, :]` is recomputed iff the goal's nominal descent (the `y` range the
-  foot and COM sweep down to the lowest block, plus three segments) meets a changed
-  interval; otherwise the old row is remapped;
-* a robustness score is recomputed iff the same range for the whole probe box does;
-* goal policies are recomputed (there are few), and deployment is redone (cheap).
+* a pair `(i, j)` is recomputed iff `i` or `j` is new, or a changed block can bind one of
+  its collision clauses in some cell of its grid (`_Context.ascent_binds` on `i`'s segment,
+  `_Context.descent_binds` on `j`'s; closed-form bounds of the clauses of
+  `ascent_y_bounds` / `descent_y_bounds`). Only blocks higher than the segment (`h + rho0`
+  for the rise) count, on the side the velocity range can reach, within the distance the
+  COM (foot) covers while it is below the block's top. All other pairs keep their screened
+  result, goal and margins; a recomputed old pair keeps its old screen (it depends on no
+  block);
+* a prepares row `P[a, :]` is remapped from the old row iff the goal is unchanged and its
+  nominal descent meets no changed block (`_Context.touched`: the foot's `y` while it is
+  below the block's top, until it reaches the lowest block); a robustness score likewise
+  for the whole probe box;
+* goal policies are reused iff every candidate is an old policy and no changed block can
+  bind the ascent bounds at the goal's probes (`_goal_binds`); deployment is redone.
 
-A change of the map's ends or of its lowest height (which the hole test uses) falls back
-to a full build. Instantiated policies are kept in a canonical order (goal policies by
+docs/parkour_reactive.md derives each test. A change of the map's ends, of its lowest
+height (which the hole test uses) or of the goal, or SLIP-adjusted templates, fall back to
+a full build. Instantiated policies are kept in a canonical order (goal policies by
 situated id, then pairs by `(situated, target)`), so an update and a full build of the
 same map feed `deploy` the same arrays.
 """
@@ -32,6 +38,7 @@ same map feed `deploy` the same arrays.
 from __future__ import annotations
 
 import dataclasses
+import heapq
 import time
 
 import jax
@@ -39,7 +46,7 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.sparse as sp
 
-from .._deploy import by_robustness, deploy
+from .._deploy import by_robustness
 from .._graph import count_edges
 from .._params import Hopper
 from .._plan import SAFETY_WE, SAFETY_WG, Plan
@@ -64,6 +71,7 @@ _ROW_CHUNK = 8192
 #: Froude-scaled for other hoppers.
 PROBE = 0.2
 _PAD = 1e-6
+_TOL = 1e-9
 _GRID = PairGrid()
 
 
@@ -179,10 +187,17 @@ class _Context:
         offset = np.stack([self.py, centre[self.s_of, 1] + hopper.rho0, np.zeros(self.n_sit)], 1)
         self.gf_world = gf_rel[self.t_of] + offset[:, :, None]
         self.d_world = d_rel[self.t_of] + offset[:, :, None]
-        self.dy_max = float(np.max(np.abs(templates.as_array()[:, 4:6])))
         scale = template_scales(hopper)
         self.probe = np.array([PROBE * scale["length"]] * 2 + [PROBE * scale["velocity"]])
         self.h_min = float(np.min(np.asarray(terrain.heights)))
+        # For the dependency tests of updates (`ascent_binds`, `descent_binds`, `touched`).
+        self.h = centre[self.s_of, 1]
+        self.l = 0.5 * templates.seg_length
+        arr = templates.as_array()
+        self.dy_lo, self.dy_hi = arr[self.t_of, 4], arr[self.t_of, 5]
+        starts, ends = np.asarray(terrain.starts), np.asarray(terrain.ends)
+        self.contiguous = bool(np.all(starts[1:] == ends[:-1]))
+        self.floor = self.h_min if self.contiguous else self.h_min - hopper.rho0
         # Padded copies for the jitted stages: a snapshot that adds blocks or segments
         # then reuses the compiled code (zero-width blocks at the map's end, segments with
         # no block; neither can be touched down on nor bind a collision clause).
@@ -226,34 +241,99 @@ class _Context:
         srt = np.argsort(key)
         return rows[srt], cols[srt]
 
-    def affected(self, intervals):
-        """Rows (Gf side) and columns (domain side) whose ranges meet a changed interval."""
-        l = 0.5 * self.templates.seg_length
-        r_lo = np.minimum(self.gf_world[:, 0, 0], self.py - l - self.dy_max)
-        r_hi = np.maximum(self.gf_world[:, 0, 1], self.py + l + self.dy_max)
-        c_lo = np.minimum(self.d_world[:, 0, 0], self.py - l)
-        c_hi = np.maximum(self.d_world[:, 0, 1], self.py + l)
-        return _meets(r_lo, r_hi, intervals), _meets(c_lo, c_hi, intervals)
+    def ascent_binds(self, idx, z1, v0, v1, blocks):
+        """Whether a block of `blocks` can bind an ascent bound of situated `idx`.
 
-    def pair_range(self, rows, cols):
-        """Dependency range `[lo, hi]` of each pair (see the module docstring)."""
-        l = 0.5 * self.templates.seg_length
-        ov_lo = np.maximum(self.gf_world[rows, 0, 0], self.d_world[cols, 0, 0])
-        ov_hi = np.minimum(self.gf_world[rows, 0, 1], self.d_world[cols, 0, 1])
-        pi, pj = self.py[rows], self.py[cols]
-        lo = np.minimum.reduce([ov_lo, pi - l - self.dy_max, pj - l])
-        hi = np.maximum.reduce([ov_hi, pi + l + self.dy_max, pj + l])
-        return lo, hi
+        `ascent_y_bounds` on the segment of `idx`, at cells with `ydot in [v0, v1]` and apex
+        `z <= z1`: a block `(s, e, H)` higher than `h + rho0` to the right gives `u = s +
+        ydot t_up - max(ydot, 0) t_H`, and `Gf`'s upper end is `g = py - l + dy_hi + ydot
+        t_up` (`goal_position_bounds`), so `u - g = s - (py - l + dy_hi) - max(ydot, 0) t_H`
+        with `t_H <= min(sqrt(2 (H - h - rho0) / g), t_up)`. If that is `>= 0` in every
+        cell the block never cuts `y_hi`. Mirrored on the left (`y_lo`, `ydot < 0`).
+        """
+        py, base = self.py[idx], self.h[idx] + self.hopper.rho0
+        g = self.hopper.g
+        t_up = np.sqrt(2.0 * np.maximum(z1 - base, 0.0) / g)
+        up, down = np.maximum(v1, 0.0), np.maximum(-v0, 0.0)
+        reach_hi = py - self.l + self.dy_hi[idx]
+        reach_lo = py + self.l + self.dy_lo[idx]
+        out = np.zeros(np.shape(idx), bool)
+        for s, e, height in blocks:
+            rise = height - base
+            higher = rise > -_TOL
+            if not higher.any():
+                continue
+            t = np.minimum(np.sqrt(2.0 * np.maximum(rise, 0.0) / g), t_up)
+            right = s >= py
+            out |= higher & np.where(right, s - reach_hi < up * t + _PAD,
+                                     reach_lo - e < down * t + _PAD)
+        return out
 
-    def descent_range(self, goals, half_width=None):
-        """`y` range swept by the foot and COM from apexes `goals` (boxes) to the ground."""
-        hw = np.zeros(3) if half_width is None else half_width
-        y, z, v = goals[:, 0], goals[:, 1] + hw[1], goals[:, 2]
-        t = np.sqrt(np.maximum(2.0 * (z - self.hopper.rho0 - self.h_min) / self.hopper.g, 0.0))
-        # The foot lands within one segment of the segments `candidate_situated` looks at.
-        pad = 2.0 * self.templates.seg_length + hw[0]
-        return (y + np.minimum((v - hw[2]) * t, 0.0) - pad,
-                y + np.maximum((v + hw[2]) * t, 0.0) + pad)
+    def descent_binds(self, idx, z1, v0, v1, blocks):
+        """Whether a block of `blocks` can bind a descent bound of situated `idx`.
+
+        `descent_y_bounds` for a domain on the segment of `idx` (cells as in
+        `ascent_binds`): a higher block left of it gives `c = e - ydot t_H - lead` against
+        the domain's lower end `d = py - l - ydot t_h - lead` (`t_h` the fall to the
+        segment), so `c - d = e - (py - l) + ydot (t_h - t_H)`, and `0 <= t_h - t_H <=
+        min(sqrt(2 (H - h) / g), t_h)`. If `c <= d` in every cell the block never cuts the
+        domain's `y` interval (nor, therefore, the intersection's). Mirrored on the right.
+        """
+        py, h = self.py[idx], self.h[idx]
+        g = self.hopper.g
+        t_h = np.sqrt(2.0 * np.maximum(z1 - h - self.hopper.rho0, 0.0) / g)
+        up, down = np.maximum(v1, 0.0), np.maximum(-v0, 0.0)
+        out = np.zeros(np.shape(idx), bool)
+        for s, e, height in blocks:
+            dh = height - h
+            higher = height > h  # exactly the kernel's test (equal heights are common)
+            if not higher.any():
+                continue
+            t = np.minimum(np.sqrt(2.0 * np.maximum(dh, 0.0) / g), t_h)
+            left = s < py
+            out |= higher & np.where(left, (v1 > 0) & ((py - self.l) - e < up * t + _PAD),
+                                     (v0 < 0) & (s - (py + self.l) < down * t + _PAD))
+        return out
+
+    def affected(self, blocks):
+        """Rows (`Gf` side, ascent) and columns (domain side, descent) a block can bind."""
+        gf, d = self.gf_world, self.d_world
+        idx = np.arange(self.n_sit)
+        return (self.ascent_binds(idx, gf[:, 1, 1], gf[:, 2, 0], gf[:, 2, 1], blocks),
+                self.descent_binds(idx, d[:, 1, 1], d[:, 2, 0], d[:, 2, 1], blocks))
+
+    def pair_binds(self, rows, cols, blocks):
+        """Pairs whose `pair_goal` a block can change (cells: the boxes' overlap)."""
+        z1 = np.minimum(self.gf_world[rows, 1, 1], self.d_world[cols, 1, 1])
+        v0 = np.maximum(self.gf_world[rows, 2, 0], self.d_world[cols, 2, 0])
+        v1 = np.minimum(self.gf_world[rows, 2, 1], self.d_world[cols, 2, 1])
+        return (self.ascent_binds(rows, z1, v0, v1, blocks)
+                | self.descent_binds(cols, z1, v0, v1, blocks))
+
+    def touched(self, goals, blocks, half_width=None):
+        """Whether the descending foot from apexes `goals` (or any probe of the box
+        `goals +- half_width`) can meet a block of `blocks` before `touchdown` decides.
+
+        The foot falls from `(y, z - rho0)` with speed `ydot`; it is below a block's top `H`
+        from `t_H = sqrt(2 (z - rho0 - H) / g)` on, and by `t_end` (the fall to the lowest
+        block, or to the hole depth where the map has gaps) `touchdown` has found its event.
+        The block can only enter the result if its extent meets the foot's `y` on
+        `[t_H, t_end]`. Otherwise the touchdown (block, time, foot position) is decided by
+        the other blocks, and `candidate_situated` looks only at the landing block's
+        segments.
+        """
+        hw = np.zeros(3) if half_width is None else np.asarray(half_width, float)
+        g, rho0 = self.hopper.g, self.hopper.rho0
+        y_lo, y_hi = goals[:, 0] - hw[0], goals[:, 0] + hw[0]
+        z_lo, z_hi = goals[:, 1] - hw[1], goals[:, 1] + hw[1]
+        v_lo, v_hi = goals[:, 2] - hw[2], goals[:, 2] + hw[2]
+        t_end = np.sqrt(2.0 * np.maximum(z_hi - rho0 - self.floor, 0.0) / g)
+        out = np.zeros(goals.shape[0], bool)
+        for s, e, height in blocks:
+            t_h = np.minimum(np.sqrt(2.0 * np.maximum(z_lo - rho0 - height, 0.0) / g), t_end)
+            c = np.stack([v_lo * t_h, v_lo * t_end, v_hi * t_h, v_hi * t_end])
+            out |= (y_lo + c.min(0) <= e + _PAD) & (y_hi + c.max(0) >= s - _PAD)
+        return out
 
 
 _BOX_CACHE: dict = {}
@@ -285,22 +365,23 @@ def _overlaps(gf, d):
     return candidate_pairs(gf, d)
 
 
-def _meets(lo, hi, intervals) -> np.ndarray:
-    out = np.zeros(np.shape(lo), bool)
-    for a, b in intervals:
-        out |= (lo <= b + _PAD) & (hi >= a - _PAD)
-    return out
-
-
 def _changed(old: CourseMap, new: CourseMap):
-    """Changed intervals between two maps, and the old -> new segment-block map."""
+    """Blocks not in both maps, and the old -> new block map (-1: gone).
+
+    Returns `(blocks, block_map)`: `blocks` `(k, 3)` rows `(start, end, plan height)` of
+    every block that is in one map only (both versions of a changed block), plus the
+    zero-width padding blocks at the map's end (`_pad_terrain`) where the last block
+    changed.
+    """
     so, sn = old.signature(), new.signature()
     new_index = {sig: k for k, sig in enumerate(sn)}
     old_set = set(so)
-    intervals = [(s, e) for (s, e, *_) in so if (s, e, *_) not in new_index]
-    intervals += [(s, e) for (s, e, *_) in sn if (s, e, *_) not in old_set]
+    diff = [sig for sig in so if sig not in new_index] + [sig for sig in sn if sig not in old_set]
+    rows = [sig[:3] for sig in diff]
+    if so[-1] != sn[-1]:
+        rows += [(so[-1][1], so[-1][1], so[-1][2]), (sn[-1][1], sn[-1][1], sn[-1][2])]
     block_map = np.array([new_index.get(sig, -1) for sig in so], dtype=np.int64)
-    return intervals, block_map
+    return np.array(rows, float).reshape(-1, 3), block_map
 
 
 def build_course_plan(cmap: CourseMap, templates: Templates, hopper: Hopper, *,
@@ -318,47 +399,54 @@ def build_course_plan(cmap: CourseMap, templates: Templates, hopper: Hopper, *,
     Returns:
         The `CoursePlan`.
     """
-    t_start = time.perf_counter()
-    stages, mark = {}, [t_start]
+    t_start, c_start = time.perf_counter(), time.process_time()
+    stages, cpu_stages, mark = {}, {}, [t_start, c_start]
 
     def lap(name):
-        now = time.perf_counter()
+        now, cnow = time.perf_counter(), time.process_time()
         stages[name] = round(now - mark[0], 4)
-        mark[0] = now
+        cpu_stages[name] = round(cnow - mark[1], 4)
+        mark[0], mark[1] = now, cnow
 
     ctx = _Context(cmap, templates, hopper)
     goal = np.asarray(cmap.goal, float)
     n_sit = ctx.n_sit
-    intervals, old_sit_to_new = None, None
+    changed, old_sit_to_new = None, None
     if previous is not None:
-        old_ctx_terrain = previous.plan.terrain
-        same_ends = (np.asarray(old_ctx_terrain.starts)[0] == np.asarray(ctx.terrain.starts)[0]
-                     and np.asarray(old_ctx_terrain.ends)[-1] == np.asarray(ctx.terrain.ends)[-1])
-        same_min = float(np.min(np.asarray(old_ctx_terrain.heights))) == ctx.h_min
+        old_terrain = previous.plan.terrain
+        same_ends = (np.asarray(old_terrain.starts)[0] == np.asarray(ctx.terrain.starts)[0]
+                     and np.asarray(old_terrain.ends)[-1] == np.asarray(ctx.terrain.ends)[-1])
+        same_min = float(np.min(np.asarray(old_terrain.heights))) == ctx.h_min
         same_goal = np.array_equal(previous.plan.goal, goal)
-        if same_ends and same_min and same_goal and previous.plan.templates.n == templates.n:
-            intervals, block_map = _changed(previous.cmap, cmap)
+        if (same_ends and same_min and same_goal and templates.slip is None
+                and previous.plan.templates.n == templates.n):
+            changed, block_map = _changed(previous.cmap, cmap)
             old_sit_to_new = _situated_map(previous, ctx, block_map)
+            old_starts = np.asarray(old_terrain.starts)
+            if not (ctx.contiguous and np.all(old_starts[1:] == np.asarray(old_terrain.ends)[:-1])):
+                ctx.floor = ctx.h_min - hopper.rho0  # gaps: the foot may fall to the hole depth
         else:
             previous = None
 
     inc = previous is not None
+    reuse_goal = False
     if previous is None:
         rows, cols = ctx.candidate_pairs()
         reuse_keys = np.zeros(0, np.int64)
         reuse_pos = np.zeros(0, np.int64)
+        known = np.zeros(rows.size, np.int64) - 1
     else:
-        # Rows whose Gf box (or stance) and columns whose domain box (or segment) reach a
-        # changed interval: every pair whose dependency range meets one has such a row or
-        # column (the two boxes of a candidate pair overlap). Those are recomputed; every
+        # A pair's result depends on the map only through the bounds of the blocks that
+        # can bind it (`ascent_binds`, `descent_binds`): it is recomputed iff one of its
+        # policies is new or a changed block (either version) can bind it. Rows (columns)
+        # that such a block can bind on their whole `Gf` (domain) box are enumerated; every
         # other candidate pair is an old one with both policies kept.
-        row_aff, col_aff = ctx.affected(intervals)
+        row_aff, col_aff = ctx.affected(changed)
         new_to_old = np.full(n_sit, -1, np.int64)
         kept = old_sit_to_new >= 0
         new_to_old[old_sit_to_new[kept]] = np.nonzero(kept)[0]
-        row_aff |= new_to_old < 0
-        col_aff |= new_to_old < 0
-        rows, cols = ctx.candidate_pairs(row_aff, col_aff)
+        fresh = new_to_old < 0
+        rows, cols = ctx.candidate_pairs(row_aff | fresh, col_aff | fresh)
         n_old = previous.plan.n_situated
         o_r, o_c = previous.pair_key // n_old, previous.pair_key % n_old
         n_r, n_c = old_sit_to_new[o_r], old_sit_to_new[o_c]
@@ -366,35 +454,37 @@ def build_course_plan(cmap: CourseMap, templates: Templates, hopper: Hopper, *,
         ok[ok] = ~row_aff[n_r[ok]] & ~col_aff[n_c[ok]]
         reuse_pos = np.nonzero(ok)[0]
         reuse_keys = n_r[reuse_pos] * n_sit + n_c[reuse_pos]
-        # Of the enumerated pairs, recompute only those whose own dependency range meets a
-        # changed interval; look the others up among the old screened pairs.
-        lo, hi = ctx.pair_range(rows, cols)
-        need = _meets(lo, hi, intervals) | (new_to_old[rows] < 0) | (new_to_old[cols] < 0)
-        look = np.nonzero(~need)[0]
-        old_keys = new_to_old[rows[look]] * n_old + new_to_old[cols[look]]
+        # Of the enumerated pairs with both policies kept, look the old result up (the
+        # screen depends on no block: an old pair not screened stays so); recompute those
+        # a changed block can bind.
+        both = np.nonzero(~fresh[rows] & ~fresh[cols])[0]
+        old_keys = new_to_old[rows[both]] * n_old + new_to_old[cols[both]]
         pos = np.searchsorted(previous.pair_key, old_keys)
         pos = pos.clip(max=max(previous.pair_key.size - 1, 0))
         hit = (previous.pair_key.size > 0) & (previous.pair_key[pos] == old_keys)
-        reuse_keys = np.concatenate([reuse_keys, rows[look[hit]].astype(np.int64) * n_sit
-                                     + cols[look[hit]]])
-        reuse_pos = np.concatenate([reuse_pos, pos[hit]])
-        rows, cols = rows[need], cols[need]
+        binds = ctx.pair_binds(rows[both], cols[both], changed)
+        look = ~binds & hit
+        reuse_keys = np.concatenate([reuse_keys, rows[both[look]].astype(np.int64) * n_sit
+                                     + cols[both[look]]])
+        reuse_pos = np.concatenate([reuse_pos, pos[look]])
+        need = fresh[rows] | fresh[cols]
+        need[both[binds & hit]] = True
+        # For recomputed pairs that were screened before: their old position (screen skipped).
+        known = np.full(rows.size, -1, np.int64)
+        known[both[binds & hit]] = pos[binds & hit]
+        rows, cols, known = rows[need], cols[need], known[need]
     n_pairs = rows.size
     keys = rows.astype(np.int64) * n_sit + cols
     lap("candidate_pairs")
-    todo = np.ones(n_pairs, bool)
-    comp_idx = np.nonzero(todo)[0]
-    boxes = np.stack([np.maximum(ctx.gf_world[rows[comp_idx], 1:, 0],
-                                 ctx.d_world[cols[comp_idx], 1:, 0]),
-                      np.minimum(ctx.gf_world[rows[comp_idx], 1:, 1],
-                                 ctx.d_world[cols[comp_idx], 1:, 1])], axis=2)
-    args = (ctx.t_of[rows[comp_idx]], ctx.s_of[rows[comp_idx]], ctx.t_of[cols[comp_idx]],
-            ctx.s_of[cols[comp_idx]], boxes)
-    if comp_idx.size:
-        (screen,) = _padded(lambda *a: _screen_jit(*a, ctx.jtable, templates, hopper, grid),
-                            comp_idx.size, 4 * _PAIR_CHUNK, *args, small=inc)
-    else:
-        screen = np.zeros(0, bool)
+    boxes = np.stack([np.maximum(ctx.gf_world[rows, 1:, 0], ctx.d_world[cols, 1:, 0]),
+                      np.minimum(ctx.gf_world[rows, 1:, 1], ctx.d_world[cols, 1:, 1])], axis=2)
+    args = (ctx.t_of[rows], ctx.s_of[rows], ctx.t_of[cols], ctx.s_of[cols], boxes)
+    screen = known >= 0
+    todo = np.nonzero(~screen)[0]
+    if todo.size:
+        (screen[todo],) = _padded(
+            lambda *a: _screen_jit(*a, ctx.jtable, templates, hopper, grid),
+            todo.size, 4 * _PAIR_CHUNK, *(a[todo] for a in args), small=inc)
     lap("screen")
     sc = np.nonzero(screen)[0]
     if sc.size:
@@ -407,17 +497,26 @@ def build_course_plan(cmap: CourseMap, templates: Templates, hopper: Hopper, *,
     lap("instantiate")
 
     # Merge reused and computed screened pairs in key order.
-    pk = np.concatenate([reuse_keys, keys[comp_idx[sc]]])
-    p_found = np.concatenate([previous.pair_found[reuse_pos] if previous else np.zeros(0, bool),
+    pk = np.concatenate([reuse_keys, keys[sc]])
+    p_found = np.concatenate([previous.pair_found[reuse_pos] if inc else np.zeros(0, bool),
                               found])
-    p_goal = np.concatenate([previous.pair_goal[reuse_pos] if previous else np.zeros((0, 3)),
+    p_goal = np.concatenate([previous.pair_goal[reuse_pos] if inc else np.zeros((0, 3)),
                              goals])
-    p_margin = np.concatenate([previous.pair_margin[reuse_pos] if previous else np.zeros(0),
+    p_margin = np.concatenate([previous.pair_margin[reuse_pos] if inc else np.zeros(0),
                                margin])
-    p_margin_d = np.concatenate([previous.pair_margin_d[reuse_pos] if previous
+    p_margin_d = np.concatenate([previous.pair_margin_d[reuse_pos] if inc
                                  else np.zeros(0), margin_d])
-    old_inst = np.concatenate([previous.pair_inst[reuse_pos] if previous
-                               else np.zeros(0, np.int64), np.full(sc.size, -1, np.int64)])
+    # The old instantiated policy of each pair whose goal is unchanged: its prepares row
+    # and robustness depend on nothing else (and on the blocks, tested below).
+    recomputed_old = np.full(sc.size, -1, np.int64)
+    if inc:
+        k = known[sc]
+        same = k >= 0
+        same[same] = np.all(previous.pair_goal[k[same]] == goals[same], axis=1) & (
+            previous.pair_found[k[same]] == found[same])
+        recomputed_old[same] = previous.pair_inst[k[same]]
+    old_inst = np.concatenate([previous.pair_inst[reuse_pos] if inc
+                               else np.zeros(0, np.int64), recomputed_old])
     srt = np.argsort(pk, kind="stable")
     pk, p_found, p_goal, p_margin, p_margin_d, old_inst = (
         a[srt] for a in (pk, p_found, p_goal, p_margin, p_margin_d, old_inst))
@@ -426,14 +525,11 @@ def build_course_plan(cmap: CourseMap, templates: Templates, hopper: Hopper, *,
     near = np.nonzero(ctx.sit_allowed
                       & np.all((ctx.gf_world[:, :, 0] <= goal) & (goal <= ctx.gf_world[:, :, 1]),
                                axis=1))[0]
-    reuse_goal = False
-    if previous is not None and near.size:
-        # Unchanged if every candidate is an unaffected old policy and the goal's probes
-        # (`goal_policy_margin`: up to 0.5 m along each axis) meet no changed interval.
-        y = goal[0]
-        reuse_goal = bool(np.all(new_to_old[near] >= 0) and not np.any(row_aff[near])
-                          and not _meets(np.array([y - 0.51]), np.array([y + 0.51]),
-                                         intervals)[0])
+    if inc and near.size and np.all(new_to_old[near] >= 0):
+        # `goal_policy_margin` tests the goal and probes up to 0.5 along each axis against
+        # the ascent bounds of the policy's segment: unchanged if every candidate is an old
+        # policy and no changed block can bind those bounds at a probe (`_goal_binds`).
+        reuse_goal = not np.any(_goal_binds(ctx, near, goal, 0.5, changed))
     if reuse_goal:
         old_sit = previous.plan.situated[previous.plan.is_goal]
         mapped = old_sit_to_new[old_sit]
@@ -463,14 +559,14 @@ def build_course_plan(cmap: CourseMap, templates: Templates, hopper: Hopper, *,
     is_goal = np.arange(sit.size) < n_goal
     from_old = np.concatenate([np.full(n_goal, -1, np.int64), old_inst[inst]])
 
-    # Prepares rows: remap the old rows of reused policies whose descent is unchanged.
+    # Prepares rows: remap the old row of a policy with an unchanged goal whose descent
+    # meets no changed block (`touched`).
     n_inst = sit.size
     redo = np.ones(n_inst, bool)
     rows_p, cols_p = [], []
-    if previous is not None:
+    if inc:
         cand = np.nonzero(from_old >= 0)[0]
-        lo, hi = ctx.descent_range(all_goals[cand])
-        cand = cand[~_meets(lo, hi, intervals)]
+        cand = cand[~ctx.touched(all_goals[cand], changed)]
         old_p = previous.plan.prepares[from_old[cand]].tocoo()
         mapped = old_sit_to_new[old_p.col]
         bad = np.zeros(cand.size, bool)
@@ -508,12 +604,13 @@ def build_course_plan(cmap: CourseMap, templates: Templates, hopper: Hopper, *,
     de = np.asarray(ctx.segs.edge_distance)
     safety = SAFETY_WE * de[ctx.s_of[sit]] ** 3 + SAFETY_WG * dg
 
+    # Robustness: the old score of a policy with an unchanged goal whose probes' descents
+    # meet no changed block.
     robustness = np.ones(sit.size)
     redo = np.ones(sit.size, bool)
-    if previous is not None:
+    if inc:
         cand = np.nonzero(from_old >= 0)[0]
-        lo, hi = ctx.descent_range(all_goals[cand], ctx.probe)
-        cand = cand[~_meets(lo, hi, intervals)]
+        cand = cand[~ctx.touched(all_goals[cand], changed, ctx.probe)]
         robustness[cand] = previous.plan.robustness[from_old[cand]]
         redo[cand] = False
     redo &= ~is_goal
@@ -526,7 +623,7 @@ def build_course_plan(cmap: CourseMap, templates: Templates, hopper: Hopper, *,
         robustness[todo_r] = rob
     robustness[is_goal] = 1.0
     lap("safety_sampling")
-    order = deploy(p, sit, safety, is_goal, robustness, pickbest)
+    order = _deploy(p, sit, safety, is_goal, robustness, pickbest)
     lap("deploy")
     stats = {
         "n_segments": int(ctx.n_seg),
@@ -539,19 +636,100 @@ def build_course_plan(cmap: CourseMap, templates: Templates, hopper: Hopper, *,
         "n_deployed": int(order.size),
         "n_edges": count_edges(p, sit),
         "n_dropped": n_dropped,
-        "incremental": previous is not None,
-        "recomputed_pairs": int(comp_idx.size),
+        "incremental": inc,
+        "recomputed_pairs": int(n_pairs),
+        "screened_pairs_computed": int(todo.size),
+        "instantiated_pairs_computed": int(sc.size),
         "recomputed_prepares_rows": int(todo_p.size),
         "recomputed_robustness": int(todo_r.size),
-        "reused_goal_policies": reuse_goal,
-        "changed_intervals": [] if intervals is None else [list(map(float, x))
-                                                            for x in intervals],
+        "reused_goal_policies": bool(reuse_goal),
+        "new_situated": int((new_to_old < 0).sum()) if inc else int(n_sit),
+        "changed_blocks": [] if changed is None else changed.tolist(),
         "seconds": round(time.perf_counter() - t_start, 4),
         "stage_seconds": stages,
+        "cpu_seconds": round(time.process_time() - c_start, 4),
+        "stage_cpu_seconds": cpu_stages,
     }
     plan = Plan(ctx.terrain, templates, hopper, goal, sit, tgt, all_goals, safety, all_margin,
                 is_goal, robustness, p.tocsr(), order, stats)
     return CoursePlan(cmap, plan, pk, p_found, p_goal, p_margin, p_margin_d, pair_inst, stats)
+
+
+def _goal_binds(ctx: _Context, near: np.ndarray, goal: np.ndarray, reach: float,
+                blocks: np.ndarray) -> np.ndarray:
+    """Whether a block can bind `ascent_y_bounds` at the goal or a probe of it.
+
+    `goal_policy_margin` probes `goal +- reach` along each axis and needs `lo < y < hi`.
+    A higher block right of the segment gives `hi = s + ydot t_up - max(ydot, 0) t_H >= s
+    - max(-ydot, 0) t_up`; it can only matter if that is at most the largest probe `y`.
+    Mirrored on the left.
+    """
+    g, rho0 = ctx.hopper.g, ctx.hopper.rho0
+    py, base = ctx.py[near], ctx.h[near] + rho0
+    t_up = np.sqrt(2.0 * np.maximum(goal[1] + reach - base, 0.0) / g)
+    up, down = max(goal[2] + reach, 0.0), max(reach - goal[2], 0.0)
+    out = np.zeros(near.size, bool)
+    for s, e, height in blocks:
+        higher = height - base > -_TOL
+        right = s >= py
+        out |= higher & np.where(right, s - down * t_up <= goal[0] + reach + _PAD,
+                                 e + up * t_up >= goal[0] - reach - _PAD)
+    return out
+
+
+def _deploy(p, situated, safety, is_goal, robustness, pickbest=by_robustness) -> np.ndarray:
+    """`jaxhop._deploy.deploy`, the same order, with a faster queue.
+
+    The queue holds plain float keys, each once, and per key a heap of the policies that
+    have it: popping the smallest key's smallest policy is popping the smallest `(key,
+    policy)` pair, which is what `deploy`'s heap of tuples does, without comparing tuples
+    (a full deployment of 150 000 policies is host work of every update).
+    """
+    preparers = p.tocsc()
+    indptr, indices = preparers.indptr, preparers.indices
+    n = situated.shape[0]
+    depth = np.full(n, np.iinfo(np.int64).max, dtype=np.int64)
+    queued = np.zeros(n, dtype=bool)
+    expanded = bytearray(p.shape[1])
+    sit = situated.tolist()
+    keys_heap: list[float] = []
+    ties: dict[float, list[int]] = {}
+
+    def push(keys, idx):
+        for key, a in zip(keys.tolist(), idx.tolist()):
+            bucket = ties.get(key)
+            if bucket is None:
+                ties[key] = [a]
+                heapq.heappush(keys_heap, key)
+            else:
+                heapq.heappush(bucket, a)
+
+    goals = np.nonzero(is_goal)[0]
+    depth[goals] = 1
+    keys = pickbest(safety, np.where(is_goal, 1, 0), robustness)
+    push(np.asarray(keys)[goals], goals)
+    queued[goals] = True
+    order = []
+    while keys_heap:
+        key = keys_heap[0]
+        bucket = ties[key]
+        b = heapq.heappop(bucket)
+        if not bucket:
+            heapq.heappop(keys_heap)
+            del ties[key]
+        order.append(b)
+        s = sit[b]
+        if expanded[s]:
+            continue
+        expanded[s] = 1
+        col = indices[indptr[s]:indptr[s + 1]]
+        new = col[~queued[col]]
+        if new.size == 0:
+            continue
+        queued[new] = True
+        depth[new] = depth[b] + 1
+        push(np.asarray(pickbest(safety[new], depth[new], robustness[new])), new)
+    return np.asarray(order, dtype=np.int64)
 
 
 def _situated_map(previous: CoursePlan, ctx: _Context, block_map: np.ndarray) -> np.ndarray:
