@@ -521,7 +521,11 @@ def sweep(plan: Plan, *, initial=None, key=None, true_terrain: Terrain | None = 
 POOL_LANES = 8
 
 
-def _pool_step(carry, index, key, tables, true_terrain, hopper, disturbance, config):
+def _pool_step(carry, fresh, apex0, index, key, tables, true_terrain, hopper, disturbance,
+               config):
+    # Lanes marked `fresh` start their run here (`_run_init` from `apex0`).
+    carry = jax.vmap(lambda c, f, a: jax.tree.map(lambda new, old: jnp.where(f, new, old),
+                                                  _run_init(a, config), c))(carry, fresh, apex0)
     keys = jax.vmap(jax.random.fold_in, (None, 0))(key, index)
     carry = jax.vmap(_run_stride, (0, 0, None, None, None, None, None))(
         carry, keys, tables, true_terrain, hopper, disturbance, config)
@@ -544,35 +548,34 @@ def _pool_runs(runs, apex0, key, consts, config: RunConfig, on_done, lanes=POOL_
     from collections import deque
     from concurrent.futures import ThreadPoolExecutor
 
-    shapes = jax.eval_shape(_run_init, jnp.zeros(3), config)
-    treedef = jax.tree_util.tree_structure(shapes)
+    # Placeholder leaves for a lane whose run starts in the next step (`fresh`).
+    blank, treedef = jax.tree_util.tree_flatten(jax.device_get(_run_init(jnp.zeros(3), config)))
     queue, lock, stop = deque(runs), threading.Lock(), threading.Event()
 
     def worker(dev):
         on_dev = jax.device_put((key,) + tuple(consts), dev)
-        active = []  # (run, carry leaves)
+        active = []  # (run, carry leaves, fresh)
         while not stop.is_set():
             with lock:
                 while queue and len(active) < lanes:
-                    run = queue.popleft()
-                    active.append((run, jax.tree_util.tree_leaves(
-                        _init_host(apex0[run], config, shapes))))
+                    active.append((queue.popleft(), blank, True))
             if not active:
                 return
             # Spare lanes repeat live runs (same cost; their results are discarded).
-            pick = [j % len(active) for j in range(lanes)]
-            batch = [np.stack([active[p][1][i] for p in pick])
-                     for i in range(treedef.num_leaves)]
-            index = np.asarray([active[p][0] for p in pick])
+            pick = [active[j % len(active)] for j in range(lanes)]
+            batch = [np.stack([p[1][i] for p in pick]) for i in range(treedef.num_leaves)]
+            index = np.asarray([p[0] for p in pick])
+            fresh = np.asarray([p[2] for p in pick])
             carry = jax.tree_util.tree_unflatten(treedef, jax.device_put(batch, dev))
-            carry, live, final = _pool_step_jit(carry, jax.device_put(index, dev), *on_dev)
+            carry, live, final = _pool_step_jit(carry, *jax.device_put(
+                (fresh, apex0[index], index), dev), *on_dev)
             leaves = [np.asarray(x) for x in jax.tree_util.tree_leaves(carry)]
             live, final = np.asarray(live), np.asarray(final)
             still, ended = [], []
-            for slot in range(len(active)):
-                run, mine = active[slot][0], [x[slot] for x in leaves]
+            for slot, (run, _, _) in enumerate(active):
+                mine = [x[slot] for x in leaves]
                 if live[slot]:
-                    still.append((run, mine))
+                    still.append((run, mine, False))
                 else:
                     _, _, steps, _, (apexes, feet, used) = jax.tree_util.tree_unflatten(
                         treedef, mine)
@@ -629,13 +632,3 @@ def _run_pool(apex0, key, consts, config, n, chunk, mine, store, progress):
     return _combine(parts, spans, n, lambda: [np.zeros((1,) + s.shape, s.dtype)
                                               for s in shapes])
 
-
-def _init_host(apex0, config, shapes):
-    """`_run_init` in NumPy (no device round trip per refilled lane)."""
-    n = config.max_steps
-    apexes = np.full((n + 1, 3), np.nan)
-    apexes[0] = apex0
-    init = (np.asarray(apex0, float), RUNNING, 0, 0,
-            (apexes, np.full((n, 2), np.nan), np.full((n,), -1)))
-    return jax.tree_util.tree_map(lambda v, s: np.asarray(v, s.dtype).reshape(s.shape),
-                                  init, shapes)
