@@ -182,30 +182,16 @@ def main(argv=None) -> int:
     return 0
 
 
-def identical(a, b) -> bool:
-    """Two course plans with the same deployment (`same_deployment`: policies, goals to
-    1e-12, order) and, exactly, the same goals, margins, safety, robustness, goal policies
-    and prepares matrix."""
-    from jaxhop.parkour._run import same_deployment
-
-    pa, pb = a.plan, b.plan
-    return bool(same_deployment(a, b) and np.array_equal(pa.goals, pb.goals)
-                and np.array_equal(pa.margin, pb.margin) and np.array_equal(pa.safety, pb.safety)
-                and np.array_equal(pa.robustness, pb.robustness)
-                and np.array_equal(pa.is_goal, pb.is_goal)
-                and (pa.prepares != pb.prepares).nnz == 0)
-
-
 def timing(args) -> int:
     """Per dynamic course: the update chain (after an untimed warm-up chain, so that no
     compilation is timed) and full rebuilds of the snapshots (`--rebuild N`: the first N,
     `all`: every one, `worstK`: the K slowest updates, `1:3:4`: those; each after an
     untimed build with the same padded shapes, so that none includes compilation), wall
     and CPU time, the ratio per snapshot, and whether each rebuild is identical to the
-    update (`identical`)."""
+    update (`identical_plans`)."""
     from jaxhop.parkour import build_course_plan, course_map
     from jaxhop.parkour._build import _Context
-    from jaxhop.parkour._run import COURSE_GRID
+    from jaxhop.parkour._run import COURSE_GRID, identical_plans
 
     hop = leg_hopper()
     tm = leg_templates(hop)
@@ -244,7 +230,7 @@ def timing(args) -> int:
             full = build_course_plan(m, tm, hop, grid=COURSE_GRID)
             rb_wall.append(time.perf_counter() - t0)
             rb_cpu.append(time.process_time() - c0)
-            equal.append(identical(full, inc))
+            equal.append(identical_plans(full, inc))
             rb_stages.append(full.stats["stage_cpu_seconds"])
             print(f"{name} snapshot {k + 1}: update {wall[k]:.2f} s (cpu {cpu[k]:.2f}), rebuild "
                   f"{rb_wall[-1]:.1f} s (cpu {rb_cpu[-1]:.1f}), ratio {rb_wall[-1] / wall[k]:.1f} "

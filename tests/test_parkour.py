@@ -21,6 +21,7 @@ from jaxhop.parkour import build_course_plan, course_map, leg_hopper, leg_templa
 from jaxhop.parkour._map import MARGIN, RESTRICTED, CourseMap
 from jaxhop.parkour._run import (
     course_plans,
+    identical_plans,
     initial_states,
     pad_plans,
     run_reactive,
@@ -230,15 +231,6 @@ TALL = {
 }
 
 
-def _identical(a, b) -> bool:
-    pa, pb = a.plan, b.plan
-    return bool(same_deployment(a, b) and np.array_equal(pa.goals, pb.goals)
-                and np.array_equal(pa.margin, pb.margin) and np.array_equal(pa.safety, pb.safety)
-                and np.array_equal(pa.robustness, pb.robustness)
-                and np.array_equal(pa.is_goal, pb.is_goal)
-                and (pa.prepares != pb.prepares).nnz == 0)
-
-
 def _tall_maps():
     course = course_from_dict(TALL)
     hop = leg_hopper()
@@ -323,7 +315,7 @@ def test_update_with_tall_obstacle_equals_full_rebuild(tall_plans):
     for inc, full in zip(plans[1:], fulls):
         assert inc.stats["incremental"]
         assert inc.stats["recomputed_pairs"] < full.stats["n_candidate_pairs"]
-        assert _identical(inc, full)
+        assert identical_plans(inc, full)
     # Pairs between kept policies were recomputed (a changed block binds them) and kept.
     first = plans[1].stats
     assert first["instantiated_pairs_computed"] > 0

@@ -111,6 +111,17 @@ def same_deployment(a: CoursePlan, b: CoursePlan) -> bool:
                 and np.array_equal(pa.order, pb.order))
 
 
+def identical_plans(a: CoursePlan, b: CoursePlan) -> bool:
+    """`same_deployment`, and bit for bit the same goals, margins, safety, robustness, goal
+    policies and prepares matrix (an incremental update against a full rebuild)."""
+    pa, pb = a.plan, b.plan
+    return bool(same_deployment(a, b) and np.array_equal(pa.goals, pb.goals)
+                and np.array_equal(pa.margin, pb.margin) and np.array_equal(pa.safety, pb.safety)
+                and np.array_equal(pa.robustness, pb.robustness)
+                and np.array_equal(pa.is_goal, pb.is_goal)
+                and (pa.prepares != pb.prepares).nnz == 0)
+
+
 # --- padding: one compiled stride for every environment ------------------------------
 
 
