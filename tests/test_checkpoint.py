@@ -31,24 +31,30 @@ def _same(a, b):
                                                                                    nan=-7.0))
 
 
+def _interrupt_after(n_saves, monkeypatch, plan, init, **kw):
+    """`run_batch` with a checkpoint, interrupted at its `n_saves + 1`-th chunk save (what
+    SIGINT does in the middle of a sweep); returns the saved chunks' sizes."""
+    saved = []
+    real_save = _execute._ChunkStore.save
+
+    def interrupt(self, start, stop, arrays):
+        if len(saved) == n_saves:
+            raise KeyboardInterrupt
+        real_save(self, start, stop, arrays)
+        saved.append(stop - start)
+
+    monkeypatch.setattr(_execute._ChunkStore, "save", interrupt)
+    with pytest.raises(KeyboardInterrupt):
+        run_batch(plan, init, **kw)
+    monkeypatch.setattr(_execute._ChunkStore, "save", real_save)
+    return saved
+
+
 def test_interrupted_sweep_resumes(setup, tmp_path, monkeypatch):
     plan, init = setup
     kw = dict(key=jax.random.key(3), disturbance=disturbance_for("sensor"), chunk=16)
     full = run_batch(plan, init, **kw)
-
-    saved = []
-    real_save = _execute._ChunkStore.save
-
-    def interrupt_after_three(self, start, stop, arrays):
-        if len(saved) == 3:
-            raise KeyboardInterrupt  # what SIGINT does in the middle of a sweep
-        real_save(self, start, stop, arrays)
-        saved.append(start)
-
-    monkeypatch.setattr(_execute._ChunkStore, "save", interrupt_after_three)
-    with pytest.raises(KeyboardInterrupt):
-        run_batch(plan, init, checkpoint=str(tmp_path), **kw)
-    monkeypatch.setattr(_execute._ChunkStore, "save", real_save)
+    _interrupt_after(3, monkeypatch, plan, init, checkpoint=str(tmp_path), **kw)
 
     # A chunk killed while being written leaves only a temporary file; a torn chunk file
     # is ignored and recomputed.
@@ -81,20 +87,8 @@ def test_interrupted_pool_sweep_resumes(setup, tmp_path, monkeypatch):
     plan, init = setup
     kw = dict(key=jax.random.key(3), disturbance=disturbance_for("sensor"), chunk=16)
     full = run_batch(plan, init, **kw)
-
-    saved = []
-    real_save = _execute._ChunkStore.save
-
-    def interrupt_after_two(self, start, stop, arrays):
-        if len(saved) == 2:
-            raise KeyboardInterrupt
-        real_save(self, start, stop, arrays)
-        saved.append(stop - start)
-
-    monkeypatch.setattr(_execute._ChunkStore, "save", interrupt_after_two)
-    with pytest.raises(KeyboardInterrupt):
-        run_batch(plan, init, checkpoint=str(tmp_path), pool=True, **kw)
-    monkeypatch.setattr(_execute._ChunkStore, "save", real_save)
+    saved = _interrupt_after(2, monkeypatch, plan, init, checkpoint=str(tmp_path), pool=True,
+                             **kw)
 
     computed = []
     real_pool = _execute._pool_runs
