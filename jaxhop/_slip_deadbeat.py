@@ -40,6 +40,7 @@ import optimistix as optx
 from ._flight import OK, touchdown
 from ._params import Hopper
 from ._slip import (
+    KD_RATIO,
     Tolerances,
     _cartesian,
     _polar_state,
@@ -51,7 +52,7 @@ from ._slip import (
 
 # Control limits (SPEC section 13) and the touchdown-angle search interval.
 KAPPA_LO, KAPPA_HI = 10.0, 60.0  # kc rho0 / (m g)
-RATIO_LO, RATIO_HI = 0.5, 2.0  # kd / kc
+RATIO_LO, RATIO_HI = KD_RATIO  # kd / kc
 TH_LO, TH_HI = -jnp.pi / 3, jnp.pi / 3
 # Searches run at looser tolerances than the simulated stride; 1e-8 moves an apex by ~1e-7 m.
 SEARCH_TOL = Tolerances(rtol=1e-8, atol=1e-8)
