@@ -56,37 +56,56 @@ def deploy(
 
     Returns:
         The deployed policies, in order.
+
+    The queue holds plain float keys, each once, and per key a heap of the policies that
+    have it: popping the smallest key's smallest policy is popping the smallest `(key,
+    policy)` pair, without comparing tuples (a parkour update redeploys 150 000 policies).
     """
     preparers = p.tocsc()
+    indptr, indices = preparers.indptr, preparers.indices
     n = situated.shape[0]
     robustness = np.ones(n) if robustness is None else robustness
     depth = np.full(n, np.iinfo(np.int64).max, dtype=np.int64)
     queued = np.zeros(n, dtype=bool)
-    expanded = np.zeros(p.shape[1], dtype=bool)
-    heap: list[tuple[float, int]] = []
+    expanded = bytearray(p.shape[1])
+    sit = situated.tolist()
+    keys_heap: list[float] = []
+    ties: dict[float, list[int]] = {}
+
+    def push(keys, idx):
+        for key, a in zip(keys.tolist(), idx.tolist()):
+            bucket = ties.get(key)
+            if bucket is None:
+                ties[key] = [a]
+                heapq.heappush(keys_heap, key)
+            else:
+                heapq.heappush(bucket, a)
+
     goals = np.nonzero(is_goal)[0]
     depth[goals] = 1
     keys = pickbest(safety, np.where(is_goal, 1, 0), robustness)
-    for a in goals:
-        heapq.heappush(heap, (float(keys[a]), int(a)))
-        queued[a] = True
+    push(np.asarray(keys, float)[goals], goals)
+    queued[goals] = True
     order = []
-    while heap:
-        _, b = heapq.heappop(heap)
+    while keys_heap:
+        key = keys_heap[0]
+        bucket = ties[key]
+        b = heapq.heappop(bucket)
+        if not bucket:
+            heapq.heappop(keys_heap)
+            del ties[key]
         order.append(b)
-        s = situated[b]
+        s = sit[b]
         if expanded[s]:
             continue
-        expanded[s] = True
-        col = preparers.indices[preparers.indptr[s]:preparers.indptr[s + 1]]
+        expanded[s] = 1
+        col = indices[indptr[s]:indptr[s + 1]]
         new = col[~queued[col]]
         if new.size == 0:
             continue
         queued[new] = True
         depth[new] = depth[b] + 1
-        keys_new = pickbest(safety[new], depth[new], robustness[new])
-        for key, a in zip(keys_new, new):
-            heapq.heappush(heap, (float(key), int(a)))
+        push(np.asarray(pickbest(safety[new], depth[new], robustness[new]), float), new)
     return np.asarray(order, dtype=np.int64)
 
 

@@ -326,19 +326,19 @@ def test_update_with_tall_obstacle_equals_full_rebuild(tall_plans):
 
 
 @pytest.mark.slow
-def test_course_deploy_equals_deploy(tall_plans):
-    # The course builder's queue (float keys, ties by index) gives `deploy`'s order, also
-    # when many keys tie.
+def test_deploy_queue_equals_the_twins_tuple_heap(tall_plans):
+    # `deploy`'s queue (float keys, ties by index) gives the order of the twin's heap of
+    # `(key, policy)` tuples, also when many keys tie.
+    from jaxhop import reference as R
     from jaxhop._deploy import by_depth, by_robustness, by_safety, deploy
-    from jaxhop.parkour._build import _deploy
 
     p = tall_plans[0][1].plan
     args = (p.prepares, p.situated, p.safety, p.is_goal, p.robustness)
-    for pickbest in (by_robustness, by_depth, by_safety):
-        assert np.array_equal(_deploy(*args, pickbest), deploy(*args, pickbest))
     ties = (p.prepares, p.situated, np.round(p.safety, 2) * 0, p.is_goal,
             np.round(p.robustness * 3) / 3)
-    assert np.array_equal(_deploy(*ties), deploy(*ties))
+    for pickbest in (by_robustness, by_depth, by_safety):
+        for a in (args, ties):
+            assert np.array_equal(deploy(*a, pickbest), R.deploy(*a, key=pickbest))
 
 
 @pytest.mark.slow

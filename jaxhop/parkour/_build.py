@@ -38,7 +38,6 @@ same map feed `deploy` the same arrays.
 from __future__ import annotations
 
 import dataclasses
-import heapq
 import time
 
 import jax
@@ -46,7 +45,7 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.sparse as sp
 
-from .._deploy import by_robustness
+from .._deploy import by_robustness, deploy
 from .._graph import count_edges
 from .._params import Hopper
 from .._plan import SAFETY_WE, SAFETY_WG, Plan
@@ -623,7 +622,7 @@ def build_course_plan(cmap: CourseMap, templates: Templates, hopper: Hopper, *,
         robustness[todo_r] = rob
     robustness[is_goal] = 1.0
     lap("safety_sampling")
-    order = _deploy(p, sit, safety, is_goal, robustness, pickbest)
+    order = deploy(p, sit, safety, is_goal, robustness, pickbest)
     lap("deploy")
     stats = {
         "n_segments": int(ctx.n_seg),
@@ -675,61 +674,6 @@ def _goal_binds(ctx: _Context, near: np.ndarray, goal: np.ndarray, reach: float,
         out |= higher & np.where(right, s - down * t_up <= goal[0] + reach + _PAD,
                                  e + up * t_up >= goal[0] - reach - _PAD)
     return out
-
-
-def _deploy(p, situated, safety, is_goal, robustness, pickbest=by_robustness) -> np.ndarray:
-    """`jaxhop._deploy.deploy`, the same order, with a faster queue.
-
-    The queue holds plain float keys, each once, and per key a heap of the policies that
-    have it: popping the smallest key's smallest policy is popping the smallest `(key,
-    policy)` pair, which is what `deploy`'s heap of tuples does, without comparing tuples
-    (a full deployment of 150 000 policies is host work of every update).
-    """
-    preparers = p.tocsc()
-    indptr, indices = preparers.indptr, preparers.indices
-    n = situated.shape[0]
-    depth = np.full(n, np.iinfo(np.int64).max, dtype=np.int64)
-    queued = np.zeros(n, dtype=bool)
-    expanded = bytearray(p.shape[1])
-    sit = situated.tolist()
-    keys_heap: list[float] = []
-    ties: dict[float, list[int]] = {}
-
-    def push(keys, idx):
-        for key, a in zip(keys.tolist(), idx.tolist()):
-            bucket = ties.get(key)
-            if bucket is None:
-                ties[key] = [a]
-                heapq.heappush(keys_heap, key)
-            else:
-                heapq.heappush(bucket, a)
-
-    goals = np.nonzero(is_goal)[0]
-    depth[goals] = 1
-    keys = pickbest(safety, np.where(is_goal, 1, 0), robustness)
-    push(np.asarray(keys)[goals], goals)
-    queued[goals] = True
-    order = []
-    while keys_heap:
-        key = keys_heap[0]
-        bucket = ties[key]
-        b = heapq.heappop(bucket)
-        if not bucket:
-            heapq.heappop(keys_heap)
-            del ties[key]
-        order.append(b)
-        s = sit[b]
-        if expanded[s]:
-            continue
-        expanded[s] = 1
-        col = indices[indptr[s]:indptr[s + 1]]
-        new = col[~queued[col]]
-        if new.size == 0:
-            continue
-        queued[new] = True
-        depth[new] = depth[b] + 1
-        push(np.asarray(pickbest(safety[new], depth[new], robustness[new])), new)
-    return np.asarray(order, dtype=np.int64)
 
 
 def _situated_map(previous: CoursePlan, ctx: _Context, block_map: np.ndarray) -> np.ndarray:
