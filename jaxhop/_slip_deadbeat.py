@@ -234,11 +234,14 @@ def _deadbeat_bracket(apex, goal, h, hopper, tol, n_scan=KC_SCAN):
 
 
 def _residual(p, apex, goal, h, hopper, tol, terrain=None):
-    th, s = p
+    # A non-finite point runs a benign stride and counts as failed: a stance started from
+    # NaN would run diffrax to MAX_STEPS, and under vmap stall every other lane.
+    finite = jnp.all(jnp.isfinite(p))
+    th, s = jnp.where(finite, p, 0.0)
     kc_lo, kc_hi = kc_limits(hopper)
     nxt, code, *_ = _trial(apex, goal, h, th, kc_lo + s * (kc_hi - kc_lo), hopper, tol,
                            terrain)
-    return jnp.where(code == OK, nxt - goal, 1e3)
+    return jnp.where((code == OK) & finite, nxt - goal, 1e3)
 
 
 def _initial_guesses(apex, goal, h, hopper, tol, terrain=None):
@@ -301,6 +304,9 @@ def _deadbeat_gradient(apex, goal, h, hopper, tol, max_iter=16, cost_tol=1e-16,
     def step(p, r, jac, trust, state):
         normal = jac.T @ jac + 1e-12 * jnp.trace(jac.T @ jac) * jnp.eye(2)
         direction = jnp.linalg.solve(normal, jac.T @ r)
+        # A failed stride has a constant residual, hence a zero Jacobian and a singular
+        # normal matrix: no step (the trial repeats the best point, which is rejected).
+        direction = jnp.where(jnp.all(jnp.isfinite(direction)), direction, 0.0)
         updates, state = opt.update(trust * direction, state)
         p = optax.apply_updates(p, updates)
         return jnp.stack([jnp.clip(p[0], TH_LO, TH_HI), jnp.clip(p[1], 0.0, 1.0)]), state

@@ -306,6 +306,35 @@ def test_deadbeat_recovers_targets_small(method):
     assert len(within) >= 3 + len(extra) and np.all(within)
 
 
+def test_gradient_solver_never_tries_a_non_finite_point(monkeypatch):
+    # A start whose stride fails has a constant residual, a zero Jacobian and a singular
+    # normal matrix. The step used to be NaN; every later trial then ran a NaN stance to
+    # diffrax's MAX_STEPS (~0.13 s each, 16 times), stalling a whole vmapped batch. The
+    # case: a backward-moving apex over reference's goal block asked to reverse onto a
+    # goal whose foothold lies behind the 0.35 m block's edge.
+    from jaxhop import _slip_deadbeat as D
+    from jaxhop._terrain import builtin_terrain
+
+    seen = []
+    residual = D._residual
+
+    def recording(p, *args, **kwargs):
+        jax.debug.callback(lambda q: seen.append(np.asarray(q)), p)
+        return residual(p, *args, **kwargs)
+
+    monkeypatch.setattr(D, "_residual", recording)
+    apex = jnp.array([9.085155396247906, 1.2430493059720336, -1.9875529588897811])
+    goal = jnp.array([8.725000000000001, 1.1175037200259623, 1.5992968749999998])
+    u, _ = jax.jit(lambda a, g, t: deadbeat_slip(a, g, 0.0, HOP, terrain=t))(
+        apex, goal, builtin_terrain("reference"))
+    jax.effects_barrier()
+    assert len(seen) > 20
+    assert np.all(np.isfinite(np.stack(seen))) and np.all(np.isfinite(np.asarray(u)))
+    # A non-finite point itself counts as a failed stride, not as NaN.
+    r = residual(jnp.array([jnp.nan, 0.5]), apex, goal, 0.0, HOP, D.SEARCH_TOL)
+    assert np.all(np.asarray(r) == 1e3)
+
+
 @pytest.mark.heavy
 @pytest.mark.slow
 @pytest.mark.parametrize("method", ["bracket", "gradient"])
