@@ -286,6 +286,8 @@ def _clip_p(p):
 def _residual(p, apex, goal, h, hopper: Hopper, sqrt_w, terrain=None):
     """Weighted apex error of a trial stride at `p = (th_td, s)`, clipped to the bounds as
     the JAX solver clips its iterates; `1e3` where the trial fails."""
+    if not np.all(np.isfinite(p)):
+        return sqrt_w * 1e3
     th, s = _clip_p(p)
     kc_lo, kc_hi = kc_limits(hopper)
     nxt, code, _ = trial(apex, goal, h, th, kc_lo + s * (kc_hi - kc_lo), hopper,
@@ -349,13 +351,16 @@ def _gauss_newton(p0, apex, goal, h, hopper: Hopper, sqrt_w, max_iter=16, cost_t
     """`_deadbeat_gradient`'s damped Gauss-Newton, step for step: the step
     `(J'J + 1e-12 tr(J'J) I)^-1 J'r` times the trust scale, clipped to `MAX_STEP` per
     coordinate and the iterate to the bounds; a trial that does not lower C2 is rejected and
-    quarters the trust scale, an accepted one doubles it (up to 1)."""
+    quarters the trust scale, an accepted one doubles it (up to 1). A singular normal
+    matrix (a failed stride's zero Jacobian) gives no step."""
     def step(p, r, jac, trust):
         normal = jac.T @ jac + 1e-12 * np.trace(jac.T @ jac) * np.eye(2)
         try:
             direction = np.linalg.solve(normal, jac.T @ r)
-        except np.linalg.LinAlgError:
-            direction = np.full(2, np.nan)
+        except np.linalg.LinAlgError:  # a failed stride: zero Jacobian, no step
+            direction = np.zeros(2)
+        if not np.all(np.isfinite(direction)):
+            direction = np.zeros(2)
         q = p - np.clip(trust * direction, -MAX_STEP, MAX_STEP)
         return np.array([min(max(q[0], TH_LO), TH_HI), min(max(q[1], 0.0), 1.0)])
 
