@@ -295,9 +295,9 @@ def bench_slip_sweep(jp, quick: bool):
     grid = sweep_grid(terrain)
     initial = grid[jaxhop.in_global_domain(grid, jp.tables(), Hopper())]
     n_all = initial.shape[0]
-    # The BHop plan without the SLIP adjustments (the twin has none): many SLIP runs on it
-    # circle the goal area to max_steps = 60, so this is a harder load than the nominal
-    # `--model slip` sweep. JAX: an evenly spaced subsample of the sweep's initial
+    # The BHop plan without the SLIP adjustments (the twin has none): about half of the
+    # SLIP runs on it leave the global domain (`outside_domain`), so the load differs from
+    # the nominal `--model slip` sweep. JAX: an evenly spaced subsample of the sweep's initial
     # conditions (256 of 4 470; --quick: 64). The twin (two deadbeat solves per stride,
     # about 1 s): an evenly spaced subsample of what JAX ran; both compared per run.
     n_jax = 64 if quick else min(256, n_all)
