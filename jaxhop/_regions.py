@@ -44,6 +44,11 @@ def slip_shift_limits(ydot, tmpl: Templates):
         return tmpl.dy_lo, tmpl.dy_hi
     lo = tmpl.slip.h(0.5 * (tmpl.v_hi + ydot))
     hi = -tmpl.slip.h(-0.5 * (tmpl.v_lo + ydot))
+    if tmpl.slip.reversal:
+        # The leg force points away from the foot: a stance that turns forward motion into
+        # backward motion lifts off behind its foot, and vice versa (docs/decisions.md).
+        hi = jnp.where((ydot < 0) & (tmpl.v_hi > 0), jnp.minimum(hi, 0.0), hi)
+        lo = jnp.where((ydot > 0) & (tmpl.v_lo < 0), jnp.maximum(lo, 0.0), lo)
     return lo, hi
 
 

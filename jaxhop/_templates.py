@@ -33,6 +33,9 @@ class SlipAdjust:
             which shifts every domain's `y` range by `-Y` (eq 36).
         v_max: `|ydot_max|` of eq 37, the largest template speed (m/s).
         cm, ca, cb, co, cs: the constants of `h`.
+        reversal: also forbid a shift past the foot for strides that reverse direction
+            (forward to backward: `dy <= 0`; backward to forward: `dy >= 0`), which no
+            SLIP stance can do (`slip_shift_limits`; docs/decisions.md, "Reversal rule").
     """
 
     theta_avg: float = 0.2
@@ -42,11 +45,12 @@ class SlipAdjust:
     cb: float = 2.018
     co: float = -1.149
     cs: float = 0.2252
+    reversal: bool = True
 
     @classmethod
     def printed(cls, **kwargs) -> SlipAdjust:
         """The constants as printed in the paper (`Cm = 1.11, Ca = 1, Cb = 10, Co = -0.1`)."""
-        return cls(cm=1.11, ca=1.0, cb=10.0, co=-0.1, cs=1.1, **kwargs)
+        return cls(cm=1.11, ca=1.0, cb=10.0, co=-0.1, cs=1.1, reversal=False, **kwargs)
 
     def lead(self, ydot):
         """`Y` of eq 37: how far ahead of the BHop foot the SLIP foot lands (m)."""
