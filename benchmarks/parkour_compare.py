@@ -54,17 +54,18 @@ def device_name() -> str:
             f"load average {load:.1f} at start")
 
 
-def _plans(course, hop, tm, rebuild, cache_dir, log):
+def _plans(course, hop, tm, rebuild, cache_dir, log, align=False):
     path = None
+    tag = "-aligned" if align else ""
     if cache_dir:
         os.makedirs(cache_dir, exist_ok=True)
-        path = os.path.join(cache_dir, f"{course.name}-r{rebuild}.pkl")
+        path = os.path.join(cache_dir, f"{course.name}{tag}-r{rebuild}.pkl")
         for r in (rebuild, 1, 0):  # any cached build of this course will do for timing
-            alt = os.path.join(cache_dir, f"{course.name}-r{r}.pkl")
+            alt = os.path.join(cache_dir, f"{course.name}{tag}-r{r}.pkl")
             if os.path.exists(alt) and (r == rebuild or rebuild == 0):
                 with open(alt, "rb") as f:
                     return pickle.load(f)
-    cps = course_plans(course, hop, tm, rebuild=rebuild, log=log)
+    cps = course_plans(course, hop, tm, rebuild=rebuild, log=log, align=align)
     if path:
         with open(path, "wb") as f:
             pickle.dump(cps, f)
@@ -91,6 +92,8 @@ def main(argv=None) -> int:
     ap.add_argument("--markdown")
     ap.add_argument("--merge", nargs="+", metavar="JSON",
                     help="only merge the JSON outputs of earlier runs into one table")
+    ap.add_argument("--align", action="store_true",
+                    help="segments on the absolute grid (`course_map(..., align=True)`)")
     ap.add_argument("--timing", action="store_true",
                     help="only time incremental updates against full rebuilds (warm)")
     args = ap.parse_args(argv)
@@ -129,7 +132,7 @@ def main(argv=None) -> int:
         if "reactive" in planners:
             rebuild = 1 if (name in args.rebuild.split(",") and course.snapshots) else 0
             t0 = time.perf_counter()
-            cps = _plans(course, hop, tm, rebuild, args.cache, log)
+            cps = _plans(course, hop, tm, rebuild, args.cache, log, args.align)
             out["plans"].append({
                 "course": name, "n_snapshots": len(cps.plans) - 1,
                 "n_policies": [int(cp.stats["n_instantiated"]) for cp in cps.plans],
@@ -195,7 +198,7 @@ def timing(args) -> int:
 
     hop = leg_hopper()
     tm = leg_templates(hop)
-    out = {"device": device_name(), "courses": []}
+    out = {"device": device_name(), "align": args.align, "courses": []}
     if args.json and os.path.exists(args.json):  # resume: keep the courses measured before
         with open(args.json) as f:
             out["courses"] = json.load(f).get("courses", [])
@@ -204,8 +207,8 @@ def timing(args) -> int:
         course = load_course(name)
         if not course.snapshots or name in done:
             continue
-        cps = _plans(course, hop, tm, 0, args.cache, print)
-        maps = [course_map(course, env, hop) for _, env in course.snapshots]
+        cps = _plans(course, hop, tm, 0, args.cache, print, args.align)
+        maps = [course_map(course, env, hop, align=args.align) for _, env in course.snapshots]
         base = cps.plans[0]
         prev = base
         for m in maps:  # warm-up: compiles every chunk size the updates use

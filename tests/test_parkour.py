@@ -231,21 +231,50 @@ TALL = {
 }
 
 
-def _tall_maps():
+def _tall_maps(align=False):
     course = course_from_dict(TALL)
     hop = leg_hopper()
     envs = [course.environment] + [e for _, e in course.snapshots]
-    return [course_map(course, e, hop) for e in envs], hop, leg_templates(hop)
+    return [course_map(course, e, hop, align=align) for e in envs], hop, leg_templates(hop)
 
 
-def test_update_dependency_tests_are_sufficient():
+def test_course_map_segments_stay_put_when_an_obstacle_moves():
+    # Landable segments sit on the absolute grid k * 2l (whatever their block), so moving
+    # the tall obstacle by 2 mm and the restricted area by 3 cm changes only segments
+    # within a segment of the moved edges (and their margin bands).
+    from jaxhop._terrain import segments
+
+    maps, hop, tm = _tall_maps(align=True)
+    seg = tm.seg_length
+
+    def landable(m):
+        s = segments(m.plan, seg)
+        keep = np.asarray(m.kind)[np.asarray(s.block)] == 0
+        return np.asarray(s.centre)[keep]
+
+    c0, c1 = landable(maps[0]), landable(maps[1])
+    for c in (c0, c1):
+        k = c[:, 0] / seg - 0.5
+        np.testing.assert_allclose(k, np.round(k), atol=1e-9)
+    key = [set(map(tuple, np.round(c, 9))) for c in (c0, c1)]
+    changed = np.array(sorted(key[0] ^ key[1]))
+    assert 0 < len(changed) < 0.1 * len(key[1])
+    # Moved edges: the obstacle 0.45-0.55 -> 0.452-0.552, the restricted area
+    # 0.97-1.03 -> 1.0-1.06; each with its Mh = 0.03 band.
+    edges = np.array([0.45, 0.452, 0.55, 0.552, 0.97, 1.0, 1.03, 1.06])
+    near = np.min(np.abs(changed[:, :1] - edges[None, :]), axis=1)
+    assert np.all(near <= 0.03 + seg)
+
+
+@pytest.mark.parametrize("align", [False, True])
+def test_update_dependency_tests_are_sufficient(align):
     # The tests that let an update keep old results, checked directly on the tall
     # obstacle's 2 mm move: a pair between kept policies whose collision clauses no
     # changed block can bind has the same `pair_goal` on both maps, and an apex whose
     # descent meets no changed block has the same `candidate_situated` result.
     from jaxhop.parkour import _build as B
 
-    maps, hop, tm = _tall_maps()
+    maps, hop, tm = _tall_maps(align)
     old, new = (B._Context(m, tm, hop) for m in maps[:2])
     blocks, block_map = B._changed(maps[0], maps[1])
     assert np.any(blocks[:, 2] > hop.rho0)  # the moved obstacle binds rises from the floor
@@ -256,6 +285,7 @@ def test_update_dependency_tests_are_sufficient():
     prev = Prev()
     prev.plan = Prev()
     prev.plan.terrain, prev.plan.templates = maps[0].plan, tm
+    prev.cmap = maps[0]
     old_to_new = B._situated_map(prev, new, block_map)
     new_to_old = np.full(new.n_sit, -1)
     new_to_old[old_to_new[old_to_new >= 0]] = np.nonzero(old_to_new >= 0)[0]
@@ -285,9 +315,17 @@ def test_update_dependency_tests_are_sufficient():
     n = 3000
     apex = np.stack([rng.uniform(0.1, 1.0, n), rng.uniform(0.2, 0.7, n),
                      rng.uniform(-0.5, 1.0, n)], 1)
-    untouched = ~new.touched(apex, blocks)
+    # `touched` is given only where a touchdown can be looked up differently (a re-cut
+    # block of the same height keeps its grid segments).
+    landing = B._landing_changes(maps[0], maps[1], blocks, tm.seg_length)
+    assert landing.shape[0] > 0
+    untouched = ~new.touched(apex, landing)
     assert untouched.any() and (~untouched).any()
-    assert np.all(new.touched(apex, blocks, new.probe) >= ~untouched)
+    if align:
+        # Some apexes near a re-cut block are kept only thanks to the narrower test; they
+        # are checked below like the others.
+        assert np.any(new.touched(apex, blocks) & untouched)
+    assert np.all(new.touched(apex, landing, new.probe) >= ~untouched)
 
     def rows_of(ctx, a):
         return B._padded(lambda g: B._rows_jit(g, ctx.jallowed, ctx.jtable, tm, ctx.jterrain,
@@ -299,9 +337,9 @@ def test_update_dependency_tests_are_sufficient():
         assert set(ids1[a][in1[a]]) == set(old_to_new[ids0[a][in0[a]]])
 
 
-@pytest.fixture(scope="module")
-def tall_plans():
-    maps, hop, tm = _tall_maps()
+@pytest.fixture(scope="module", params=[False, True], ids=["centred", "aligned"])
+def tall_plans(request):
+    maps, hop, tm = _tall_maps(request.param)
     plans = [build_course_plan(maps[0], tm, hop, grid=GRID)]
     for m in maps[1:]:
         plans.append(build_course_plan(m, tm, hop, grid=GRID, previous=plans[-1]))

@@ -165,6 +165,18 @@ class CoursePlan:
     stats: dict
 
 
+def _segments(terrain: Terrain, seg_length: float):
+    """`segments` with centres rounded to 1e-12 m.
+
+    `course_map` puts segments on an absolute grid, but `segments` computes a centre from
+    its block's start, so the same segment in a re-cut block differs in the last bits. An
+    update reuses results computed with the old centre; rounding makes both the same
+    number, so an update stays bit for bit equal to a full rebuild.
+    """
+    segs = segments(terrain, seg_length)
+    return dataclasses.replace(segs, centre=jnp.round(segs.centre, 12))
+
+
 class _Context:
     """Everything about a course map that the stages share."""
 
@@ -172,7 +184,7 @@ class _Context:
         self.cmap, self.templates, self.hopper = cmap, templates, hopper
         terrain = cmap.plan
         self.terrain = terrain
-        self.segs = segments(terrain, templates.seg_length)
+        self.segs = _segments(terrain, templates.seg_length)
         self.table = situated_table(terrain, self.segs, templates.seg_length)
         self.nt, self.n_seg = templates.n, self.segs.n
         self.n_sit = self.nt * self.n_seg
@@ -383,6 +395,51 @@ def _changed(old: CourseMap, new: CourseMap):
     return np.array(rows, float).reshape(-1, 3), block_map
 
 
+def _landing_changes(old: CourseMap, new: CourseMap, blocks: np.ndarray, seg: float):
+    """The parts of the changed `blocks` where a touchdown can be looked up differently.
+
+    `candidate_situated` depends on the map only through the touchdown (the first block
+    the falling foot meets) and the allowed segments of the landing block within one
+    segment of the foot. Where a block was only re-cut (same height, same kind, and the
+    same grid segment covering each point; `course_map` keeps segments on an absolute
+    grid), neither changes. So the result can differ only within one segment of a point
+    where the plan height, the kind or the covering segment differs between the maps.
+
+    Returns:
+        `(k, 3)` rows `(start, end, height)` for `touched`: every such interval, widened by
+        one segment on each side, once at each map's height there.
+    """
+    if blocks.shape[0] == 0:
+        return blocks
+    maps = []
+    for m in (old, new):
+        t = m.plan
+        segs = _segments(t, seg)
+        maps.append((np.asarray(t.starts), np.asarray(t.ends), np.asarray(t.heights),
+                     np.asarray(m.kind), np.asarray(segs.centre)[:, 0],
+                     np.asarray(segs.block)))
+    cuts = np.unique(np.concatenate([blocks[:, 0], blocks[:, 1]]
+                                    + [np.concatenate([st, en]) for st, en, *_ in maps]))
+    lo, hi = blocks[:, 0].min(), blocks[:, 1].max()
+    cuts = cuts[(cuts >= lo) & (cuts <= hi)]
+    rows = []
+    for a, b in zip(cuts[:-1], cuts[1:]):
+        if b - a < 1e-12 or not np.any((blocks[:, 0] <= a) & (blocks[:, 1] >= b)):
+            continue
+        mid = 0.5 * (a + b)
+        state = []
+        for st, en, h, kind, centre, block in maps:
+            k = int(np.searchsorted(st, mid, side="right")) - 1
+            inside = 0 <= k and mid < en[k]
+            on = np.nonzero((block == k) & (np.abs(centre - mid) <= 0.5 * seg))[0]
+            state.append((float(h[k]) if inside else None, int(kind[k]) if inside else -1,
+                          round(float(centre[on[0]]), 9) if inside and on.size else None))
+        if state[0] != state[1]:
+            for h in {x[0] for x in state if x[0] is not None}:
+                rows.append((a - seg, b + seg, h))
+    return np.array(rows, float).reshape(-1, 3)
+
+
 def build_course_plan(cmap: CourseMap, templates: Templates, hopper: Hopper, *,
                       grid: PairGrid = _GRID, pickbest=by_robustness,
                       previous: CoursePlan | None = None) -> CoursePlan:
@@ -410,7 +467,7 @@ def build_course_plan(cmap: CourseMap, templates: Templates, hopper: Hopper, *,
     ctx = _Context(cmap, templates, hopper)
     goal = np.asarray(cmap.goal, float)
     n_sit = ctx.n_sit
-    changed, old_sit_to_new = None, None
+    changed, old_sit_to_new, landing = None, None, None
     if previous is not None:
         old_terrain = previous.plan.terrain
         same_ends = (np.asarray(old_terrain.starts)[0] == np.asarray(ctx.terrain.starts)[0]
@@ -420,6 +477,7 @@ def build_course_plan(cmap: CourseMap, templates: Templates, hopper: Hopper, *,
         if (same_ends and same_min and same_goal and templates.slip is None
                 and previous.plan.templates.n == templates.n):
             changed, block_map = _changed(previous.cmap, cmap)
+            landing = _landing_changes(previous.cmap, cmap, changed, templates.seg_length)
             old_sit_to_new = _situated_map(previous, ctx, block_map)
             old_starts = np.asarray(old_terrain.starts)
             if not (ctx.contiguous and np.all(old_starts[1:] == np.asarray(old_terrain.ends)[:-1])):
@@ -565,7 +623,7 @@ def build_course_plan(cmap: CourseMap, templates: Templates, hopper: Hopper, *,
     rows_p, cols_p = [], []
     if inc:
         cand = np.nonzero(from_old >= 0)[0]
-        cand = cand[~ctx.touched(all_goals[cand], changed)]
+        cand = cand[~ctx.touched(all_goals[cand], landing)]
         old_p = previous.plan.prepares[from_old[cand]].tocoo()
         mapped = old_sit_to_new[old_p.col]
         bad = np.zeros(cand.size, bool)
@@ -609,7 +667,7 @@ def build_course_plan(cmap: CourseMap, templates: Templates, hopper: Hopper, *,
     redo = np.ones(sit.size, bool)
     if inc:
         cand = np.nonzero(from_old >= 0)[0]
-        cand = cand[~ctx.touched(all_goals[cand], changed, ctx.probe)]
+        cand = cand[~ctx.touched(all_goals[cand], landing, ctx.probe)]
         robustness[cand] = previous.plan.robustness[from_old[cand]]
         redo[cand] = False
     redo &= ~is_goal
@@ -677,18 +735,27 @@ def _goal_binds(ctx: _Context, near: np.ndarray, goal: np.ndarray, reach: float,
 
 
 def _situated_map(previous: CoursePlan, ctx: _Context, block_map: np.ndarray) -> np.ndarray:
-    """Old situated id -> new situated id (-1 where its block changed)."""
-    old_segs = segments(previous.plan.terrain, previous.plan.templates.seg_length)
-    old_block = np.asarray(old_segs.block)
-    nb_old = previous.plan.terrain.n_blocks
-    first_old = np.concatenate([[0], np.cumsum(np.bincount(old_block, minlength=nb_old))[:-1]])
-    new_block = np.asarray(ctx.segs.block)
-    first_new = np.concatenate([[0], np.cumsum(np.bincount(new_block,
-                                                           minlength=ctx.terrain.n_blocks))[:-1]])
-    nb = block_map[old_block]
-    local = np.arange(old_block.size) - first_old[old_block]
-    new_seg = np.where(nb >= 0, first_new[np.maximum(nb, 0)] + local, -1)
+    """Old situated id -> new situated id (-1 where its segment is gone).
+
+    A segment is kept when the new map has a segment with the same centre, height and
+    block kind, even if its block was re-cut (`course_map` puts segments on an absolute
+    grid, so a block that changes at one end keeps the others). Whatever a re-cut block
+    changes is covered by the dependency tests, which see both versions of every changed
+    block. `block_map` (old block -> new block, -1 if changed) is not needed for that.
+    """
+    del block_map
+    old_segs = _segments(previous.plan.terrain, previous.plan.templates.seg_length)
+    old_kind = np.asarray(previous.cmap.kind)[np.asarray(old_segs.block)]
+    new_kind = np.asarray(ctx.cmap.kind)[np.asarray(ctx.segs.block)]
+
+    def keys(centre, kind):
+        c = np.round(np.asarray(centre, float), 9)
+        return list(zip(c[:, 0].tolist(), c[:, 1].tolist(), kind.tolist()))
+
+    index = {k: i for i, k in enumerate(keys(ctx.segs.centre, new_kind))}
+    new_seg = np.array([index.get(k, -1) for k in keys(old_segs.centre, old_kind)],
+                       dtype=np.int64).reshape(-1)
     nt = ctx.nt
-    old_sit = np.arange(old_block.size * nt)
+    old_sit = np.arange(new_seg.size * nt)
     seg = new_seg[old_sit // nt]
     return np.where(seg >= 0, seg * nt + old_sit % nt, -1)

@@ -13,7 +13,10 @@ either wholly landable or wholly forbidden:
   on the top) are forbidden blocks too; a touchdown inside one is the failure `margin`;
 * floors are also cut on an absolute lattice (every `cell` segments, default 8): segments
   are centred in their block (SPEC section 2), so without it an obstacle appearing in a
-  long stretch of floor would shift every segment of that stretch;
+  long stretch of floor would shift every segment of that stretch; with `align=True`
+  every landable block is also split into whole segments on the absolute grid `k 2l` and
+  segment-less rests at its ends (`_align`), so that moving one of its ends keeps its
+  segments;
 * the vertical margin `Mv`: in the *planner's* map the two `Mh` bands on an obstacle's
   top are raised by `Mv`, so every collision-free region the planner computes keeps the
   foot `Mv` above an obstacle's front and back edges. The simulator uses the true map.
@@ -26,6 +29,7 @@ per block beside the terrain.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -53,6 +57,33 @@ CELL = 8
 def _on_lattice(y: float, step: float) -> bool:
     k = round(y / step)
     return abs(y - k * step) < 1e-9
+
+
+def _align(rows: list, seg: float) -> list:
+    """Landable blocks cut at the first and last multiple of `seg` inside them.
+
+    `segments` centres a block's segments, so a block re-cut at one end (an obstacle, or
+    its margin band, moved by a millimetre) would move all of them, and an incremental
+    update would have to redo every policy on them. Each landable block is therefore split
+    into a middle run of whole segments on the absolute grid `k seg` and the rests at
+    either end (shorter than a segment: no segment, the same surface). A change at one end
+    then changes only that rest, and the middle unless a grid point is crossed.
+    """
+    out = []
+    for a, b, h, hp, kind in rows:
+        ga = round(math.ceil(a / seg - 1e-9) * seg, 12)
+        gb = round(math.floor(b / seg + 1e-9) * seg, 12)
+        ga = a if abs(ga - a) < 1e-9 else ga
+        gb = b if abs(gb - b) < 1e-9 else gb
+        if kind != 0 or gb - ga < seg - 1e-9:
+            out.append((a, b, h, hp, kind))
+            continue
+        if ga > a:
+            out.append((a, ga, h, hp, kind))
+        out.append((ga, gb, h, hp, kind))
+        if gb < b:
+            out.append((gb, b, h, hp, kind))
+    return out
 
 
 def leg_hopper(robot: Robot | None = None, mass: float = 1.0) -> Hopper:
@@ -97,7 +128,7 @@ class CourseMap:
 
 def course_map(course: Course, env: Environment | None = None,
                hopper: Hopper | None = None, pad: float = PAD,
-               goal_zr: float = GOAL_ZR, cell: int = CELL) -> CourseMap:
+               goal_zr: float = GOAL_ZR, cell: int = CELL, align: bool = False) -> CourseMap:
     """Terrains, forbidden blocks and goal apex of one environment of `course`.
 
     Arguments:
@@ -108,6 +139,10 @@ def course_map(course: Course, env: Environment | None = None,
         pad, goal_zr: floor beyond start/goal and goal height above the virtual ground, in
             leg lengths.
         cell: floor blocks are also cut on an absolute lattice of `cell` segments (0: not).
+        align: also put the segments of every landable block on the absolute grid `k 2l`
+            (`_align`): a snapshot then keeps the segments away from its changes, and an
+            incremental update redoes less (docs/parkour_reactive.md). Off by default:
+            the comparison tables were measured without it.
     """
     env = course.environment if env is None else env
     hopper = leg_hopper() if hopper is None else hopper
@@ -140,6 +175,8 @@ def course_map(course: Course, env: Environment | None = None,
             rows[-1] = (rows[-1][0], b, h, hp, kind)
         else:
             rows.append((float(a), float(b), h, hp, kind))
+    if align:
+        rows = _align(rows, seg)
     goal = np.array([course.goal, float(env.surface(course.goal)) + leg * (1.0 + goal_zr),
                      0.0])
     # The goal is kept beside the terrain (`make_terrain`'s goal check assumes a 1 m leg).

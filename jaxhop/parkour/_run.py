@@ -66,15 +66,16 @@ class CoursePlans:
 
 
 def course_plans(course: Course, hopper: Hopper, templates, *, grid: PairGrid = COURSE_GRID,
-                 rebuild: int = 0, log=None) -> CoursePlans:
+                 rebuild: int = 0, log=None, align: bool = False) -> CoursePlans:
     """Full plan for the first environment, incremental updates for the snapshots.
 
     The first `rebuild` snapshots' plans are also built in full (timed), for the
     update-vs-rebuild comparison; `CoursePlans.rebuild_equal` records whether the full
     rebuild gave the same deployment (same policies, goals and order) as the update.
+    `align` is `course_map`'s option.
     """
     envs = [(0, course.environment)] + list(course.snapshots)
-    maps = [course_map(course, env, hopper) for _, env in envs]
+    maps = [course_map(course, env, hopper, align=align) for _, env in envs]
     t0, c0 = time.perf_counter(), time.process_time()
     plans = [build_course_plan(maps[0], templates, hopper, grid=grid)]
     build_s = time.perf_counter() - t0
