@@ -276,17 +276,10 @@ def test_update_dependency_tests_are_sufficient(align):
 
     maps, hop, tm = _tall_maps(align)
     old, new = (B._Context(m, tm, hop) for m in maps[:2])
-    blocks, block_map = B._changed(maps[0], maps[1])
+    blocks = B._changed(maps[0], maps[1])
     assert np.any(blocks[:, 2] > hop.rho0)  # the moved obstacle binds rises from the floor
 
-    class Prev:
-        pass
-
-    prev = Prev()
-    prev.plan = Prev()
-    prev.plan.terrain, prev.plan.templates = maps[0].plan, tm
-    prev.cmap = maps[0]
-    old_to_new = B._situated_map(prev, new, block_map)
+    old_to_new = B._situated_map(maps[0], old.segs, new)
     new_to_old = np.full(new.n_sit, -1)
     new_to_old[old_to_new[old_to_new >= 0]] = np.nonzero(old_to_new >= 0)[0]
     kept = (new_to_old >= 0) & new.sit_allowed
@@ -317,7 +310,7 @@ def test_update_dependency_tests_are_sufficient(align):
                      rng.uniform(-0.5, 1.0, n)], 1)
     # `touched` is given only where a touchdown can be looked up differently (a re-cut
     # block of the same height keeps its grid segments).
-    landing = B._landing_changes(maps[0], maps[1], blocks, tm.seg_length)
+    landing = B._landing_changes(maps[0], old.segs, new, blocks)
     assert landing.shape[0] > 0
     untouched = ~new.touched(apex, landing)
     assert untouched.any() and (~untouched).any()

@@ -377,25 +377,22 @@ def _overlaps(gf, d):
 
 
 def _changed(old: CourseMap, new: CourseMap):
-    """Blocks not in both maps, and the old -> new block map (-1: gone).
+    """Blocks not in both maps.
 
-    Returns `(blocks, block_map)`: `blocks` `(k, 3)` rows `(start, end, plan height)` of
-    every block that is in one map only (both versions of a changed block), plus the
-    zero-width padding blocks at the map's end (`_pad_terrain`) where the last block
-    changed.
+    Returns `(k, 3)` rows `(start, end, plan height)` of every block that is in one map
+    only (both versions of a changed block), plus the zero-width padding blocks at the
+    map's end (`_pad_terrain`) where the last block changed.
     """
     so, sn = old.signature(), new.signature()
-    new_index = {sig: k for k, sig in enumerate(sn)}
-    old_set = set(so)
-    diff = [sig for sig in so if sig not in new_index] + [sig for sig in sn if sig not in old_set]
+    old_set, new_set = set(so), set(sn)
+    diff = [sig for sig in so if sig not in new_set] + [sig for sig in sn if sig not in old_set]
     rows = [sig[:3] for sig in diff]
     if so[-1] != sn[-1]:
         rows += [(so[-1][1], so[-1][1], so[-1][2]), (sn[-1][1], sn[-1][1], sn[-1][2])]
-    block_map = np.array([new_index.get(sig, -1) for sig in so], dtype=np.int64)
-    return np.array(rows, float).reshape(-1, 3), block_map
+    return np.array(rows, float).reshape(-1, 3)
 
 
-def _landing_changes(old: CourseMap, new: CourseMap, blocks: np.ndarray, seg: float):
+def _landing_changes(old: CourseMap, old_segs, ctx: _Context, blocks: np.ndarray):
     """The parts of the changed `blocks` where a touchdown can be looked up differently.
 
     `candidate_situated` depends on the map only through the touchdown (the first block
@@ -404,6 +401,7 @@ def _landing_changes(old: CourseMap, new: CourseMap, blocks: np.ndarray, seg: fl
     same grid segment covering each point; `course_map` keeps segments on an absolute
     grid), neither changes. So the result can differ only within one segment of a point
     where the plan height, the kind or the covering segment differs between the maps.
+    `old`, `old_segs`: the old map and its `_segments`; `ctx`: the new map's context.
 
     Returns:
         `(k, 3)` rows `(start, end, height)` for `touched`: every such interval, widened by
@@ -411,10 +409,10 @@ def _landing_changes(old: CourseMap, new: CourseMap, blocks: np.ndarray, seg: fl
     """
     if blocks.shape[0] == 0:
         return blocks
+    seg = ctx.templates.seg_length
     maps = []
-    for m in (old, new):
+    for m, segs in ((old, old_segs), (ctx.cmap, ctx.segs)):
         t = m.plan
-        segs = _segments(t, seg)
         maps.append((np.asarray(t.starts), np.asarray(t.ends), np.asarray(t.heights),
                      np.asarray(m.kind), np.asarray(segs.centre)[:, 0],
                      np.asarray(segs.block)))
@@ -476,9 +474,10 @@ def build_course_plan(cmap: CourseMap, templates: Templates, hopper: Hopper, *,
         same_goal = np.array_equal(previous.plan.goal, goal)
         if (same_ends and same_min and same_goal and templates.slip is None
                 and previous.plan.templates.n == templates.n):
-            changed, block_map = _changed(previous.cmap, cmap)
-            landing = _landing_changes(previous.cmap, cmap, changed, templates.seg_length)
-            old_sit_to_new = _situated_map(previous, ctx, block_map)
+            changed = _changed(previous.cmap, cmap)
+            old_segs = _segments(old_terrain, previous.plan.templates.seg_length)
+            landing = _landing_changes(previous.cmap, old_segs, ctx, changed)
+            old_sit_to_new = _situated_map(previous.cmap, old_segs, ctx)
             old_starts = np.asarray(old_terrain.starts)
             if not (ctx.contiguous and np.all(old_starts[1:] == np.asarray(old_terrain.ends)[:-1])):
                 ctx.floor = ctx.h_min - hopper.rho0  # gaps: the foot may fall to the hole depth
@@ -734,18 +733,16 @@ def _goal_binds(ctx: _Context, near: np.ndarray, goal: np.ndarray, reach: float,
     return out
 
 
-def _situated_map(previous: CoursePlan, ctx: _Context, block_map: np.ndarray) -> np.ndarray:
+def _situated_map(old: CourseMap, old_segs, ctx: _Context) -> np.ndarray:
     """Old situated id -> new situated id (-1 where its segment is gone).
 
     A segment is kept when the new map has a segment with the same centre, height and
     block kind, even if its block was re-cut (`course_map` puts segments on an absolute
     grid, so a block that changes at one end keeps the others). Whatever a re-cut block
     changes is covered by the dependency tests, which see both versions of every changed
-    block. `block_map` (old block -> new block, -1 if changed) is not needed for that.
+    block. `old_segs`: the old map's `_segments`.
     """
-    del block_map
-    old_segs = _segments(previous.plan.terrain, previous.plan.templates.seg_length)
-    old_kind = np.asarray(previous.cmap.kind)[np.asarray(old_segs.block)]
+    old_kind = np.asarray(old.kind)[np.asarray(old_segs.block)]
     new_kind = np.asarray(ctx.cmap.kind)[np.asarray(ctx.segs.block)]
 
     def keys(centre, kind):
