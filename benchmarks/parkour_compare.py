@@ -54,9 +54,9 @@ def device_name() -> str:
             f"load average {load:.1f} at start")
 
 
-def _plans(course, hop, tm, rebuild, cache_dir, log, align=False):
+def _plans(course, hop, tm, rebuild, cache_dir, log, align=True):
     path = None
-    tag = "-aligned" if align else ""
+    tag = "-lattice" if align else "-centred"
     if cache_dir:
         os.makedirs(cache_dir, exist_ok=True)
         path = os.path.join(cache_dir, f"{course.name}{tag}-r{rebuild}.pkl")
@@ -92,8 +92,9 @@ def main(argv=None) -> int:
     ap.add_argument("--markdown")
     ap.add_argument("--merge", nargs="+", metavar="JSON",
                     help="only merge the JSON outputs of earlier runs into one table")
-    ap.add_argument("--align", action="store_true",
-                    help="segments on the absolute grid (`course_map(..., align=True)`)")
+    ap.add_argument("--centred", dest="align", action="store_false",
+                    help="every block's segments centred (`course_map(..., align=False)`); "
+                         "default: floor segments flush with the lattice")
     ap.add_argument("--timing", action="store_true",
                     help="only time incremental updates against full rebuilds (warm)")
     args = ap.parse_args(argv)

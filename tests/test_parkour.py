@@ -18,7 +18,7 @@ from jaxhop._templates import (
 )
 from jaxhop.mppc import course_from_dict, list_courses, load_course
 from jaxhop.parkour import build_course_plan, course_map, leg_hopper, leg_templates
-from jaxhop.parkour._map import MARGIN, RESTRICTED, CourseMap
+from jaxhop.parkour._map import MARGIN, PARKOUR_FAILURES, RESTRICTED, CourseMap
 from jaxhop.parkour._run import (
     course_plans,
     identical_plans,
@@ -239,26 +239,41 @@ def _tall_maps(align=False):
 
 
 def test_course_map_segments_stay_put_when_an_obstacle_moves():
-    # Landable segments sit on the absolute grid k * 2l (whatever their block), so moving
-    # the tall obstacle by 2 mm and the restricted area by 3 cm changes only segments
-    # within a segment of the moved edges (and their margin bands).
+    # Floor segments of a block with one end on the lattice sit flush with it, on the
+    # absolute grid k * 2l, so moving the tall obstacle by 2 mm and the restricted area by
+    # 3 cm changes only segments within a segment of the moved edges (and their margin
+    # bands); and every block keeps as many segments as centring gives it.
     from jaxhop._terrain import segments
+    from jaxhop.parkour._map import CELL, _on_lattice
 
     maps, hop, tm = _tall_maps(align=True)
+    centred, _, _ = _tall_maps(align=False)
     seg = tm.seg_length
 
-    def landable(m):
+    def landable(m, lattice_only=False):
         s = segments(m.plan, seg)
-        keep = np.asarray(m.kind)[np.asarray(s.block)] == 0
+        b = np.asarray(s.block)
+        keep = np.asarray(m.kind)[b] == 0
+        if lattice_only:
+            st, en = np.asarray(m.plan.starts), np.asarray(m.plan.ends)
+            one = np.array([_on_lattice(st[k], CELL * seg) or _on_lattice(en[k], CELL * seg)
+                            for k in b])
+            keep &= one
         return np.asarray(s.centre)[keep]
 
-    c0, c1 = landable(maps[0]), landable(maps[1])
-    for c in (c0, c1):
+    for m, mc in zip(maps, centred):
+        assert len(landable(m)) == len(landable(mc))
+        c = landable(m, lattice_only=True)
+        assert len(c) > 0.5 * len(landable(m))
         k = c[:, 0] / seg - 0.5
         np.testing.assert_allclose(k, np.round(k), atol=1e-9)
-    key = [set(map(tuple, np.round(c, 9))) for c in (c0, c1)]
-    changed = np.array(sorted(key[0] ^ key[1]))
-    assert 0 < len(changed) < 0.1 * len(key[1])
+    def moved(a, b):
+        key = [set(map(tuple, np.round(landable(m), 9))) for m in (a, b)]
+        return np.array(sorted(key[0] ^ key[1]))
+
+    changed = moved(*maps[:2])
+    # Centred, every segment of the re-cut floor blocks moves.
+    assert 0 < len(changed) <= 0.5 * len(moved(*centred[:2]))
     # Moved edges: the obstacle 0.45-0.55 -> 0.452-0.552, the restricted area
     # 0.97-1.03 -> 1.0-1.06; each with its Mh = 0.03 band.
     edges = np.array([0.45, 0.452, 0.55, 0.552, 0.97, 1.0, 1.03, 1.06])
@@ -314,10 +329,6 @@ def test_update_dependency_tests_are_sufficient(align):
     assert landing.shape[0] > 0
     untouched = ~new.touched(apex, landing)
     assert untouched.any() and (~untouched).any()
-    if align:
-        # Some apexes near a re-cut block are kept only thanks to the narrower test; they
-        # are checked below like the others.
-        assert np.any(new.touched(apex, blocks) & untouched)
     assert np.all(new.touched(apex, landing, new.probe) >= ~untouched)
 
     def rows_of(ctx, a):
@@ -438,6 +449,14 @@ def test_parkour_cli_reactive(tmp_path):
     for key in ("course", "planner", "finished", "jumps", "flight_time", "replan_ms",
                 "violations", "executed"):
         assert key in res
-    assert res["planner"] == "reactive" and res["finished"] and res["violations"] == 0
-    assert res["jumps"] == len(res["executed"])
+    # The first run's outcome depends on where the snapshot's new obstacle finds it (on
+    # this course most runs meet it: docs/parkour_reactive.md); whatever it is, it is
+    # reported consistently and no run touches forbidden floor.
+    assert res["planner"] == "reactive" and res["violations"] == 0 and res["runs"] == 4
+    assert res["finished"] == (res["failure"] is None)
+    assert res["failure"] in (None, *PARKOUR_FAILURES)
+    n_ok = round(res["success_rate"] * 4)
+    assert abs(res["success_rate"] * 4 - n_ok) < 1e-9
+    assert sum(res["failures"].values()) == 4 - n_ok
+    assert res["jumps"] == len(res["executed"]) > 0
     assert set(res["executed"][0]) == {"xs", "zs", "v", "theta", "t", "x1", "z1"}

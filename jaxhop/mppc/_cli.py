@@ -39,6 +39,9 @@ def add_parser(subparsers):
     p.add_argument("--seed", type=int, default=0, help="seed of initial states and noise")
     p.add_argument("--runs", type=int, default=1,
                    help="reactive planner: seeded runs (run 0 is reported in full)")
+    p.add_argument("--segments", default="lattice", choices=["lattice", "centred"],
+                   help="reactive planner: floor segments on the lattice grid, so snapshot "
+                        "updates redo less (default), or centred in every block")
     p.add_argument("--final-snapshot", action="store_true",
                    help="plan the course's last snapshot as a fixed course")
     p.add_argument("--grid", type=float, default=Settings.grid,

@@ -32,19 +32,22 @@ def _stats(ms) -> dict:
 
 def reactive_parkour(course: Course, *, model: str = "bhop", noise: str = "none",
                      seed: int = 0, runs: int = 1, hopper: Hopper | None = None,
-                     templates=None, rebuild: int = 0, plans=None, log=None) -> dict:
+                     templates=None, rebuild: int = 0, plans=None, log=None,
+                     align: bool = True) -> dict:
     """Run the reactive planner on a course; the result has the MPPC result's keys.
 
     `finished`, `jumps`, `flight_time`, `violations`, `executed` describe run 0 (the first
     seeded initial apex); `success_rate` and `failures` cover all `runs`. `replan_ms` is the
     time per decision (a reactive planner decides at every apex instead of replanning);
     `update_ms` the incremental plan updates at snapshots (`rebuild_ms`: full rebuilds of
-    the first `rebuild` snapshots).
+    the first `rebuild` snapshots). `align`: `course_map`'s option (`False`: every block's
+    segments centred).
     """
     hopper = leg_hopper() if hopper is None else hopper
     templates = leg_templates(hopper) if templates is None else templates
     cps = plans if plans is not None else course_plans(course, hopper, templates,
-                                                       rebuild=rebuild, log=log)
+                                                       rebuild=rebuild, log=log,
+                                                       align=align)
     padded = pad_plans(cps)
     apex0, coverage = initial_states(cps, padded, runs, seed, hopper)
     if apex0.shape[0] == 0:

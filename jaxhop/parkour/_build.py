@@ -66,6 +66,8 @@ from ._map import CourseMap
 
 _PAIR_CHUNK = 4096
 _ROW_CHUNK = 8192
+#: Probe points per chunk of safety sampling (27 per policy).
+_PROBE_CHUNK = 65536
 #: Safety-sampling probe half-widths of `jaxhop.build_plan` (m, m, m/s) for the 1 m hopper;
 #: Froude-scaled for other hoppers.
 PROBE = 0.2
@@ -90,18 +92,20 @@ def _rows(goals, allowed, table, templates, terrain, hopper):
     return ids, inside & allowed[ids]
 
 
-def _robust(goals, allowed, table, templates, terrain, hopper, half_width):
-    offsets = jnp.stack(jnp.meshgrid(*[jnp.arange(-1.0, 2.0)] * 3, indexing="ij"), -1)
-    offsets = offsets.reshape(-1, 3) * half_width
+def _offsets(half_width) -> np.ndarray:
+    """`(27, 3)` safety-sampling probe offsets: the corners, edge and face centres and
+    centre of the box `+- half_width` (`jaxhop.build_plan`'s probes)."""
+    grid = np.stack(np.meshgrid(*[np.arange(-1.0, 2.0)] * 3, indexing="ij"), -1)
+    return grid.reshape(-1, 3) * np.asarray(half_width, float)
 
-    def one(goal):
-        def held(p):
-            ids, inside = candidate_situated(p, table, templates, terrain, hopper)
-            return jnp.any(inside & allowed[ids])
 
-        return jnp.mean(jax.vmap(held)(goal + offsets).astype(float))
+def _held(points, allowed, table, templates, terrain, hopper):
+    """Whether an allowed situated policy's domain holds each probe point."""
+    def held(p):
+        ids, inside = candidate_situated(p, table, templates, terrain, hopper)
+        return jnp.any(inside & allowed[ids])
 
-    return jax.vmap(one)(goals)
+    return jax.vmap(held)(points)
 
 
 def _goal_policies(goal, ti, si, table, templates, terrain, hopper):
@@ -112,7 +116,7 @@ def _goal_policies(goal, ti, si, table, templates, terrain, hopper):
 _screen_jit = jax.jit(_screen, static_argnames=("grid",))
 _pairs_jit = jax.jit(_pairs, static_argnames=("grid",))
 _rows_jit = jax.jit(_rows)
-_robust_jit = jax.jit(_robust)
+_held_jit = jax.jit(_held)
 _goal_jit = jax.jit(_goal_policies)
 
 
@@ -151,6 +155,9 @@ class CoursePlan:
         pair_found, pair_goal, pair_margin, pair_margin_d: their `pair_goal` results.
         pair_inst: instantiated index of each screened pair (-1: empty intersection, or
             dropped).
+        probe_held: `(n_instantiated, 27)` whether each safety-sampling probe of each
+            policy is held (`robustness` is its mean; goal policies: all true). An
+            update recomputes only the probes whose descents can meet a change.
         stats: counts and stage timings (`seconds` in total); `recomputed_*` for updates.
     """
 
@@ -163,6 +170,7 @@ class CoursePlan:
     pair_margin_d: np.ndarray
     pair_inst: np.ndarray
     stats: dict
+    probe_held: np.ndarray | None = None
 
 
 def _segments(terrain: Terrain, seg_length: float):
@@ -485,7 +493,6 @@ def build_course_plan(cmap: CourseMap, templates: Templates, hopper: Hopper, *,
             previous = None
 
     inc = previous is not None
-    reuse_goal = False
     if previous is None:
         rows, cols = ctx.candidate_pairs()
         reuse_keys = np.zeros(0, np.int64)
@@ -581,28 +588,29 @@ def build_course_plan(cmap: CourseMap, templates: Templates, hopper: Hopper, *,
     near = np.nonzero(ctx.sit_allowed
                       & np.all((ctx.gf_world[:, :, 0] <= goal) & (goal <= ctx.gf_world[:, :, 1]),
                                axis=1))[0]
-    if inc and near.size and np.all(new_to_old[near] >= 0):
+    g_ok, g_margin = np.zeros(near.size, bool), np.zeros(near.size)
+    redo_g = np.ones(near.size, bool)
+    if inc and near.size:
         # `goal_policy_margin` tests the goal and probes up to 0.5 along each axis against
-        # the ascent bounds of the policy's segment: unchanged if every candidate is an old
-        # policy and no changed block can bind those bounds at a probe (`_goal_binds`).
-        reuse_goal = not np.any(_goal_binds(ctx, near, goal, 0.5, changed))
-    if reuse_goal:
-        old_sit = previous.plan.situated[previous.plan.is_goal]
-        mapped = old_sit_to_new[old_sit]
-        srt = np.argsort(mapped)
-        goal_sit = mapped[srt]
-        goal_margin = previous.plan.margin[previous.plan.is_goal][srt]
-        reuse_goal = bool(np.all(goal_sit >= 0))
-    if reuse_goal:
-        pass
-    elif near.size:
-        g_ok, g_margin = _padded(
+        # the ascent bounds of the policy's segment: an old policy keeps its result (a
+        # goal policy with its margin, or none) if no changed block can bind those bounds
+        # at a probe (`_goal_binds`). Its Gf box, hence whether it is near, is unchanged.
+        redo_g = (new_to_old[near] < 0) | _goal_binds(ctx, near, goal, 0.5, changed)
+        old_goal = dict(zip(previous.plan.situated[previous.plan.is_goal].tolist(),
+                            previous.plan.margin[previous.plan.is_goal].tolist()))
+        for i in np.nonzero(~redo_g)[0]:
+            o = int(new_to_old[near[i]])
+            if o in old_goal:
+                g_ok[i], g_margin[i] = True, old_goal[o]
+    reuse_goal = inc and not redo_g.any()
+    if redo_g.any():
+        idx = near[redo_g]
+        ok, marg = _padded(
             lambda ti, si: _goal_jit(jnp.asarray(goal), ti, si, ctx.jtable, templates,
                                      ctx.jterrain, hopper),
-            near.size, 1024, ctx.t_of[near], ctx.s_of[near])
-        goal_sit, goal_margin = near[g_ok], g_margin[g_ok]
-    else:
-        goal_sit, goal_margin = np.zeros(0, np.int64), np.zeros(0)
+            idx.size, 1024, ctx.t_of[idx], ctx.s_of[idx], small=inc)
+        g_ok[redo_g], g_margin[redo_g] = ok, marg
+    goal_sit, goal_margin = near[g_ok], g_margin[g_ok]
     lap("goal_policies")
 
     inst = np.nonzero(p_found)[0]
@@ -660,23 +668,29 @@ def build_course_plan(cmap: CourseMap, templates: Templates, hopper: Hopper, *,
     de = np.asarray(ctx.segs.edge_distance)
     safety = SAFETY_WE * de[ctx.s_of[sit]] ** 3 + SAFETY_WG * dg
 
-    # Robustness: the old score of a policy with an unchanged goal whose probes' descents
-    # meet no changed block.
-    robustness = np.ones(sit.size)
-    redo = np.ones(sit.size, bool)
-    if inc:
+    # Robustness: the share of the 27 probes around the goal that an allowed domain holds.
+    # A probe of a policy with an unchanged goal keeps its old result if its descent meets
+    # no change (`touched`).
+    offsets = _offsets(ctx.probe)
+    n_probe = offsets.shape[0]
+    held = np.ones((sit.size, n_probe), bool)
+    redo = np.ones((sit.size, n_probe), bool)
+    redo[is_goal] = False
+    if inc and previous.probe_held is not None:
         cand = np.nonzero(from_old >= 0)[0]
-        cand = cand[~ctx.touched(all_goals[cand], landing, ctx.probe)]
-        robustness[cand] = previous.plan.robustness[from_old[cand]]
-        redo[cand] = False
-    redo &= ~is_goal
-    todo_r = np.nonzero(redo)[0]
-    if todo_r.size:
-        (rob,) = _padded(
-            lambda g: _robust_jit(g, allowed_j, ctx.jtable, templates, ctx.jterrain, hopper,
-                                  jnp.asarray(ctx.probe)),
-            todo_r.size, _ROW_CHUNK, all_goals[todo_r], small=inc)
-        robustness[todo_r] = rob
+        pts = (all_goals[cand, None, :] + offsets[None]).reshape(-1, 3)
+        again = ctx.touched(pts, landing).reshape(cand.size, n_probe)
+        held[cand] = previous.probe_held[from_old[cand]]
+        redo[cand] = again
+    todo_r = np.nonzero(redo.any(axis=1))[0]
+    pol, prb = np.nonzero(redo)
+    if pol.size:
+        pts = all_goals[pol] + offsets[prb]
+        (h,) = _padded(
+            lambda q: _held_jit(q, allowed_j, ctx.jtable, templates, ctx.jterrain, hopper),
+            pol.size, _PROBE_CHUNK, pts, small=inc)
+        held[pol, prb] = h
+    robustness = held.sum(axis=1) / n_probe
     robustness[is_goal] = 1.0
     lap("safety_sampling")
     order = deploy(p, sit, safety, is_goal, robustness, pickbest)
@@ -698,6 +712,7 @@ def build_course_plan(cmap: CourseMap, templates: Templates, hopper: Hopper, *,
         "instantiated_pairs_computed": int(sc.size),
         "recomputed_prepares_rows": int(todo_p.size),
         "recomputed_robustness": int(todo_r.size),
+        "recomputed_probes": int(pol.size),
         "reused_goal_policies": bool(reuse_goal),
         "new_situated": int((new_to_old < 0).sum()) if inc else int(n_sit),
         "changed_blocks": [] if changed is None else changed.tolist(),
@@ -708,7 +723,8 @@ def build_course_plan(cmap: CourseMap, templates: Templates, hopper: Hopper, *,
     }
     plan = Plan(ctx.terrain, templates, hopper, goal, sit, tgt, all_goals, safety, all_margin,
                 is_goal, robustness, p.tocsr(), order, stats)
-    return CoursePlan(cmap, plan, pk, p_found, p_goal, p_margin, p_margin_d, pair_inst, stats)
+    return CoursePlan(cmap, plan, pk, p_found, p_goal, p_margin, p_margin_d, pair_inst, stats,
+                      held)
 
 
 def _goal_binds(ctx: _Context, near: np.ndarray, goal: np.ndarray, reach: float,

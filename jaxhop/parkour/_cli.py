@@ -22,6 +22,7 @@ def run_parkour(args, course, write) -> int:
 
         out = reactive_parkour(course, model=getattr(args, "model", "bhop"), noise=noise,
                                seed=seed, runs=runs,
+                               align=getattr(args, "segments", "lattice") == "lattice",
                                log=lambda m: print(m, file=sys.stderr))
     else:
         from ._mppc_noise import run_mppc_noisy

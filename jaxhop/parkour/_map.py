@@ -13,10 +13,10 @@ either wholly landable or wholly forbidden:
   on the top) are forbidden blocks too; a touchdown inside one is the failure `margin`;
 * floors are also cut on an absolute lattice (every `cell` segments, default 8): segments
   are centred in their block (SPEC section 2), so without it an obstacle appearing in a
-  long stretch of floor would shift every segment of that stretch; with `align=True`
-  every landable block is also split into whole segments on the absolute grid `k 2l` and
-  segment-less rests at its ends (`_align`), so that moving one of its ends keeps its
-  segments;
+  long stretch of floor would shift every segment of that stretch; and (`align=True`,
+  the default) a floor block with one end on the lattice has its segments on the
+  absolute grid `k 2l` from that end and its slack at the other (`_align`), so that
+  moving that other end (an obstacle edge) keeps its segments;
 * the vertical margin `Mv`: in the *planner's* map the two `Mh` bands on an obstacle's
   top are raised by `Mv`, so every collision-free region the planner computes keeps the
   foot `Mv` above an obstacle's front and back edges. The simulator uses the true map.
@@ -59,30 +59,33 @@ def _on_lattice(y: float, step: float) -> bool:
     return abs(y - k * step) < 1e-9
 
 
-def _align(rows: list, seg: float) -> list:
-    """Landable blocks cut at the first and last multiple of `seg` inside them.
+def _align(rows: list, seg: float, step: float) -> list:
+    """Landable blocks with one end on the lattice: segments on the grid from that end.
 
     `segments` centres a block's segments, so a block re-cut at one end (an obstacle, or
     its margin band, moved by a millimetre) would move all of them, and an incremental
-    update would have to redo every policy on them. Each landable block is therefore split
-    into a middle run of whole segments on the absolute grid `k seg` and the rests at
-    either end (shorter than a segment: no segment, the same surface). A change at one end
-    then changes only that rest, and the middle unless a grid point is crossed.
+    update would have to redo every policy on them. A landable floor block `[a, b]` that
+    starts on a lattice cut of `course_map` and ends anywhere else is split at `a + n 2l`
+    (`n = floor((b - a) / 2l)`, as many segments as centring gives it) into `n` whole
+    segments flush with the lattice cut, hence on the absolute grid `k 2l`, and a rest
+    shorter than a segment (no segment, the same surface) at the free end; mirrored for a
+    block ending on the lattice. Moving the free end (an obstacle edge) then changes only
+    the rest, and the last segment when a grid point is crossed. The uncovered floor is
+    the same slack as with centring, all of it at the free end instead of half at each;
+    putting the last segment at the free end instead would leave a gap between segments
+    in the middle of the floor, which landing noise finds (docs/parkour_reactive.md).
+    Blocks with both ends on the lattice hold whole segments already; blocks with neither
+    (obstacle tops, floor between two close obstacles) stay centred.
     """
     out = []
     for a, b, h, hp, kind in rows:
-        ga = round(math.ceil(a / seg - 1e-9) * seg, 12)
-        gb = round(math.floor(b / seg + 1e-9) * seg, 12)
-        ga = a if abs(ga - a) < 1e-9 else ga
-        gb = b if abs(gb - b) < 1e-9 else gb
-        if kind != 0 or gb - ga < seg - 1e-9:
+        n = math.floor((b - a) / seg + 1e-9)
+        la, lb = _on_lattice(a, step), _on_lattice(b, step)
+        if kind != 0 or n == 0 or la == lb or n * seg > b - a - 1e-9:
             out.append((a, b, h, hp, kind))
             continue
-        if ga > a:
-            out.append((a, ga, h, hp, kind))
-        out.append((ga, gb, h, hp, kind))
-        if gb < b:
-            out.append((gb, b, h, hp, kind))
+        cut = round(a + n * seg, 12) if la else round(b - n * seg, 12)
+        out += [(a, cut, h, hp, kind), (cut, b, h, hp, kind)]
     return out
 
 
@@ -128,7 +131,7 @@ class CourseMap:
 
 def course_map(course: Course, env: Environment | None = None,
                hopper: Hopper | None = None, pad: float = PAD,
-               goal_zr: float = GOAL_ZR, cell: int = CELL, align: bool = False) -> CourseMap:
+               goal_zr: float = GOAL_ZR, cell: int = CELL, align: bool = True) -> CourseMap:
     """Terrains, forbidden blocks and goal apex of one environment of `course`.
 
     Arguments:
@@ -139,10 +142,11 @@ def course_map(course: Course, env: Environment | None = None,
         pad, goal_zr: floor beyond start/goal and goal height above the virtual ground, in
             leg lengths.
         cell: floor blocks are also cut on an absolute lattice of `cell` segments (0: not).
-        align: also put the segments of every landable block on the absolute grid `k 2l`
-            (`_align`): a snapshot then keeps the segments away from its changes, and an
-            incremental update redoes less (docs/parkour_reactive.md). Off by default:
-            the comparison tables were measured without it.
+        align: put the segments of a landable block with one end on the lattice on the
+            absolute grid `k 2l` from that end (`_align`): a snapshot then keeps the
+            segments away from its changes, and an incremental update redoes less
+            (docs/parkour_reactive.md). `False`: every block's segments centred, as
+            `segments` cuts any terrain. Needs `cell > 0`.
     """
     env = course.environment if env is None else env
     hopper = leg_hopper() if hopper is None else hopper
@@ -175,8 +179,8 @@ def course_map(course: Course, env: Environment | None = None,
             rows[-1] = (rows[-1][0], b, h, hp, kind)
         else:
             rows.append((float(a), float(b), h, hp, kind))
-    if align:
-        rows = _align(rows, seg)
+    if align and cell:
+        rows = _align(rows, seg, seg * cell)
     goal = np.array([course.goal, float(env.surface(course.goal)) + leg * (1.0 + goal_zr),
                      0.0])
     # The goal is kept beside the terrain (`make_terrain`'s goal check assumes a 1 m leg).

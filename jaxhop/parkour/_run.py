@@ -66,13 +66,13 @@ class CoursePlans:
 
 
 def course_plans(course: Course, hopper: Hopper, templates, *, grid: PairGrid = COURSE_GRID,
-                 rebuild: int = 0, log=None, align: bool = False) -> CoursePlans:
+                 rebuild: int = 0, log=None, align: bool = True) -> CoursePlans:
     """Full plan for the first environment, incremental updates for the snapshots.
 
     The first `rebuild` snapshots' plans are also built in full (timed), for the
     update-vs-rebuild comparison; `CoursePlans.rebuild_equal` records whether the full
     rebuild gave the same deployment (same policies, goals and order) as the update.
-    `align` is `course_map`'s option.
+    `align` is `course_map`'s option (default: segments flush with the floor lattice).
     """
     envs = [(0, course.environment)] + list(course.snapshots)
     maps = [course_map(course, env, hopper, align=align) for _, env in envs]
