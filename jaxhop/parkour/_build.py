@@ -678,10 +678,13 @@ def build_course_plan(cmap: CourseMap, templates: Templates, hopper: Hopper, *,
     redo[is_goal] = False
     if inc and previous.probe_held is not None:
         cand = np.nonzero(from_old >= 0)[0]
-        pts = (all_goals[cand, None, :] + offsets[None]).reshape(-1, 3)
-        again = ctx.touched(pts, landing).reshape(cand.size, n_probe)
         held[cand] = previous.probe_held[from_old[cand]]
-        redo[cand] = again
+        redo[cand] = False
+        # The box test (the hull of all 27 probes' paths) first: cheap, and most kept goals
+        # are far from any change; then each probe of the goals it cannot clear.
+        near_c = cand[ctx.touched(all_goals[cand], landing, ctx.probe)]
+        pts = (all_goals[near_c, None, :] + offsets[None]).reshape(-1, 3)
+        redo[near_c] = ctx.touched(pts, landing).reshape(near_c.size, n_probe)
     todo_r = np.nonzero(redo.any(axis=1))[0]
     pol, prb = np.nonzero(redo)
     if pol.size:
