@@ -95,6 +95,8 @@ def main(argv=None) -> int:
     ap.add_argument("--centred", dest="align", action="store_false",
                     help="every block's segments centred (`course_map(..., align=False)`); "
                          "default: floor segments flush with the lattice")
+    ap.add_argument("--repeat", type=int, default=3,
+                    help="--timing: timed passes over the update chain (median per snapshot)")
     ap.add_argument("--timing", action="store_true",
                     help="only time incremental updates against full rebuilds (warm)")
     args = ap.parse_args(argv)
@@ -188,7 +190,7 @@ def main(argv=None) -> int:
 
 def timing(args) -> int:
     """Per dynamic course: the update chain (after an untimed warm-up chain, so that no
-    compilation is timed) and full rebuilds of the snapshots (`--rebuild N`: the first N,
+    compilation is timed; `--repeat` timed passes, the median per snapshot) and full rebuilds of the snapshots (`--rebuild N`: the first N,
     `all`: every one, `worstK`: the K slowest updates, `1:3:4`: those; each after an
     untimed build with the same padded shapes, so that none includes compilation), wall
     and CPU time, the ratio per snapshot, and whether each rebuild is identical to the
@@ -214,13 +216,19 @@ def timing(args) -> int:
         prev = base
         for m in maps:  # warm-up: compiles every chunk size the updates use
             prev = build_course_plan(m, tm, hop, grid=COURSE_GRID, previous=prev)
-        wall, cpu, plans, prev = [], [], [], base
-        for m in maps:
-            t0, c0 = time.perf_counter(), time.process_time()
-            prev = build_course_plan(m, tm, hop, grid=COURSE_GRID, previous=prev)
-            wall.append(time.perf_counter() - t0)
-            cpu.append(time.process_time() - c0)
-            plans.append(prev)
+        walls, cpus = [], []
+        for _ in range(max(int(args.repeat), 1)):  # the chain again: medians per snapshot
+            wall, cpu, plans, prev = [], [], [], base
+            for m in maps:
+                t0, c0 = time.perf_counter(), time.process_time()
+                prev = build_course_plan(m, tm, hop, grid=COURSE_GRID, previous=prev)
+                wall.append(time.perf_counter() - t0)
+                cpu.append(time.process_time() - c0)
+                plans.append(prev)
+            walls.append(wall)
+            cpus.append(cpu)
+        wall = np.median(walls, axis=0).tolist()
+        cpu = np.median(cpus, axis=0).tolist()
         picked = _rebuilt(args.rebuild, cpu)
         rb_wall, rb_cpu, equal, rb_stages, shapes = [], [], [], [], set()
         for k in picked:
@@ -239,7 +247,8 @@ def timing(args) -> int:
             print(f"{name} snapshot {k + 1}: update {wall[k]:.2f} s (cpu {cpu[k]:.2f}), rebuild "
                   f"{rb_wall[-1]:.1f} s (cpu {rb_cpu[-1]:.1f}), ratio {rb_wall[-1] / wall[k]:.1f} "
                   f"(cpu {rb_cpu[-1] / cpu[k]:.1f}), identical {equal[-1]}", flush=True)
-        row = {"course": name, "n_snapshots": len(maps),
+        row = {"course": name, "n_snapshots": len(maps), "repeat": len(walls),
+               "update_s_all": walls, "update_cpu_s_all": cpus,
                "n_policies": int(base.stats["n_instantiated"]),
                "update_s": wall, "update_cpu_s": cpu,
                "rebuilt": [k + 1 for k in picked], "rebuild_s": rb_wall,
@@ -250,6 +259,7 @@ def timing(args) -> int:
                "recomputed_pairs": [int(p.stats["recomputed_pairs"]) for p in plans],
                "new_situated": [int(p.stats["new_situated"]) for p in plans],
                "recomputed_robustness": [int(p.stats["recomputed_robustness"]) for p in plans],
+               "recomputed_probes": [int(p.stats["recomputed_probes"]) for p in plans],
                "update_stage_cpu_s": [p.stats["stage_cpu_seconds"] for p in plans]}
         out["courses"].append(row)
         print(f"{name}: update median {np.median(wall):.2f} s (cpu {np.median(cpu):.2f}), "

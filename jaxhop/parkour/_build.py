@@ -124,14 +124,20 @@ def _padded(fn, n, chunk, *arrays, small=False):
     """Run `fn(*chunk_of_arrays)` over `n` items in fixed-size chunks.
 
     Two chunk sizes only (others would recompile, seconds, in an update): `chunk`, and
-    `chunk // 8` for small batches and for updates (`small`), where padding the last
-    large chunk would waste up to a full chunk of work.
+    `chunk // 8`. A full build uses `chunk` (`chunk // 8` if that holds all `n`). An
+    update (`small`) runs whole `chunk`s while that many items remain and `chunk // 8` for
+    the rest, so that padding the last chunk wastes at most `chunk // 8` items of work.
     """
     outs = None
-    chunk = chunk // 8 if (small or n <= chunk // 8) else chunk
-    for start in range(0, n, chunk):
-        stop = min(start + chunk, n)
-        idx = np.arange(start, start + chunk).clip(max=n - 1)
+    if small:
+        big, tail = chunk, chunk // 8
+    else:
+        big = tail = chunk // 8 if n <= chunk // 8 else chunk
+    start = 0
+    while start < n:
+        c = big if n - start >= big else tail
+        stop = min(start + c, n)
+        idx = np.arange(start, start + c).clip(max=n - 1)
         res = fn(*[jnp.asarray(a[idx]) for a in arrays])
         res = res if isinstance(res, tuple) else (res,)
         res = [np.asarray(r)[: stop - start] for r in res]
@@ -139,6 +145,7 @@ def _padded(fn, n, chunk, *arrays, small=False):
             outs = [[] for _ in res]
         for o, r in zip(outs, res):
             o.append(r)
+        start = stop
     if outs is None:
         return None
     return tuple(np.concatenate(o) for o in outs)
