@@ -189,12 +189,12 @@ def main(argv=None) -> int:
 
 
 def timing(args) -> int:
-    """Per dynamic course: the update chain (after an untimed warm-up chain, so that no
-    compilation is timed; `--repeat` timed passes, the median per snapshot) and full rebuilds of the snapshots (`--rebuild N`: the first N,
-    `all`: every one, `worstK`: the K slowest updates, `1:3:4`: those; each after an
-    untimed build with the same padded shapes, so that none includes compilation), wall
-    and CPU time, the ratio per snapshot, and whether each rebuild is identical to the
-    update (`identical_plans`)."""
+    """Per dynamic course: the update chain, after an untimed warm-up chain so that no
+    compilation is timed (`--repeat` timed passes, the median per snapshot), and full
+    rebuilds of the snapshots (`--rebuild N`: the first N, `all`: every one, `worstK`: the
+    K slowest updates, `1:3:4`: those; each after an untimed build with the same padded
+    shapes, so that none includes compilation): wall and CPU time, the ratio per snapshot,
+    and whether each rebuild is identical to the update (`identical_plans`)."""
     from jaxhop.parkour import build_course_plan, course_map
     from jaxhop.parkour._build import _Context
     from jaxhop.parkour._run import COURSE_GRID, identical_plans
