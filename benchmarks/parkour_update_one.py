@@ -36,7 +36,8 @@ def main(argv=None) -> int:
     course = load_course(args.course)
     if not 1 <= args.snapshot <= len(course.snapshots):
         ap.error(f"--snapshot: {args.course} has {len(course.snapshots)} snapshots")
-    hop, tm = leg_hopper(), leg_templates(leg_hopper())
+    hop = leg_hopper()
+    tm = leg_templates(hop)
     envs = [course.environment] + [e for _, e in course.snapshots]
     maps = [course_map(course, e, hop, align=args.align) for e in envs[: args.snapshot + 1]]
     prev = build_course_plan(maps[0], tm, hop, grid=COURSE_GRID)

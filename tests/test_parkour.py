@@ -267,6 +267,7 @@ def test_course_map_segments_stay_put_when_an_obstacle_moves():
         assert len(c) > 0.5 * len(landable(m))
         k = c[:, 0] / seg - 0.5
         np.testing.assert_allclose(k, np.round(k), atol=1e-9)
+
     def moved(a, b):
         key = [set(map(tuple, np.round(landable(m), 9))) for m in (a, b)]
         return np.array(sorted(key[0] ^ key[1]))

@@ -413,8 +413,8 @@ def _landing_changes(old: CourseMap, old_segs, ctx: _Context, blocks: np.ndarray
     `candidate_situated` depends on the map only through the touchdown (the first block
     the falling foot meets) and the allowed segments of the landing block within one
     segment of the foot. Where a block was only re-cut (same height, same kind, and the
-    same grid segment covering each point; `course_map` keeps segments on an absolute
-    grid), neither changes. So the result can differ only within one segment of a point
+    same grid segment covering each point; `course_map` keeps floor segments on the
+    lattice grid), neither changes. So the result can differ only within one segment of a point
     where the plan height, the kind or the covering segment differs between the maps.
     `old`, `old_segs`: the old map and its `_segments`; `ctx`: the new map's context.
 
@@ -763,8 +763,8 @@ def _situated_map(old: CourseMap, old_segs, ctx: _Context) -> np.ndarray:
     """Old situated id -> new situated id (-1 where its segment is gone).
 
     A segment is kept when the new map has a segment with the same centre, height and
-    block kind, even if its block was re-cut (`course_map` puts segments on an absolute
-    grid, so a block that changes at one end keeps the others). Whatever a re-cut block
+    block kind, even if its block was re-cut (`course_map` puts floor segments on the
+    lattice grid, so a block that changes at its free end keeps them). Whatever a re-cut block
     changes is covered by the dependency tests, which see both versions of every changed
     block. `old_segs`: the old map's `_segments`.
     """
