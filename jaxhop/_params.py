@@ -1,5 +1,7 @@
 """Physical parameters of the hopper: a small frozen pytree, never module constants."""
 
+import math
+
 import equinox as eqx
 import jax.numpy as jnp
 
@@ -23,30 +25,78 @@ class Hopper(eqx.Module):
                 raise InputError(f"hopper.{name} must be a positive finite number, got {value}")
 
 
+#: The hopper the paper's templates (eq 33) and disturbances (section VI-C) were written for:
+#: `m` (kg), `g` (m/s^2), `rho0` (m).
+REFERENCE_HOPPER = (80.0, 9.81, 1.0)
+
+
+def froude_scales(hopper) -> dict:
+    """Froude scale factors of `hopper` against `REFERENCE_HOPPER`.
+
+    Lengths scale with `rho0`, speeds with `sqrt(g rho0)`, energies with `m g rho0`; angles
+    and the velocity gain `k` are dimensionless. Each factor is a ratio of the two hoppers'
+    scales, computed so that it is exactly `1.0` for the reference hopper.
+
+    Returns:
+        `{"length", "velocity", "energy"}` as Python floats.
+    """
+    m0, g0, l0 = REFERENCE_HOPPER
+    m, g, l = float(hopper.m), float(hopper.g), float(hopper.rho0)
+    length = l / l0
+    return {"length": length, "velocity": math.sqrt((g / g0) * length),
+            "energy": (m / m0) * (g / g0) * length}
+
+
 class Disturbance(eqx.Module):
-    """Per-run disturbance settings (SPEC section 11).
+    """Per-run disturbance settings (`docs/decisions.md`, "Disturbances").
 
     Attributes:
         wind: constant horizontal acceleration in every flight phase (m/s^2).
         sensor: half-widths of the uniform apex measurement noise on (y, z, ydot).
+        landing: half-width of the uniform horizontal error of each landing (m).
     """
 
     wind: float = 0.0
     sensor: jnp.ndarray = eqx.field(default_factory=lambda: jnp.zeros(3))
+    landing: float = 0.0
 
 
-NOISE_KINDS = ("none", "wind", "sensor", "ground")
+#: Named disturbances. `ground` perturbs the perceived map (`perceived_terrain`), not the
+#: flight; `landing` shifts every landing point. Terrains and parkour courses share them.
+NOISE_KINDS = ("none", "wind", "sensor", "ground", "landing")
 WIND_ACCEL = -0.2
 SENSOR_HALF_WIDTH = (0.05, 0.05, 0.05)
 GROUND_HALF_WIDTH = 0.15
+LANDING_HALF_WIDTH = 0.05
 
 
-def disturbance_for(noise: str) -> Disturbance:
-    """The in-flight disturbance of a named noise kind (`ground` acts on the map instead)."""
-    if noise not in NOISE_KINDS:
-        raise InputError(f"noise must be one of {', '.join(NOISE_KINDS)}, got {noise!r}")
+def check_noise(noise: str, kinds=NOISE_KINDS) -> str:
+    """`noise` if it names one of `kinds`; otherwise an `InputError` listing them."""
+    if noise not in kinds:
+        raise InputError(f"noise must be one of {', '.join(kinds)}, got {noise!r}")
+    return noise
+
+
+def disturbance_for(noise: str, hopper=None) -> Disturbance:
+    """The in-flight disturbance of a named noise kind (`ground` acts on the map instead).
+
+    With `hopper`, the paper's values (written for the 80 kg, 1 m hopper) are Froude-scaled
+    to it: wind with `g`, sensor noise on positions and landings with `rho0`, on speed with
+    `sqrt(g rho0)`. Without, they are used as they are.
+    """
+    check_noise(noise)
+    if hopper is None:
+        length = velocity = 1.0
+        wind = WIND_ACCEL
+    else:
+        f = froude_scales(hopper)
+        length, velocity = f["length"], f["velocity"]
+        wind = WIND_ACCEL * float(hopper.g) / REFERENCE_HOPPER[1]
     if noise == "wind":
-        return Disturbance(wind=WIND_ACCEL)
+        return Disturbance(wind=wind)
     if noise == "sensor":
-        return Disturbance(sensor=jnp.asarray(SENSOR_HALF_WIDTH))
+        y, z, v = SENSOR_HALF_WIDTH
+        return Disturbance(sensor=jnp.array([y * length, z * length, v * velocity]))
+    if noise == "landing":
+        return Disturbance(landing=LANDING_HALF_WIDTH * length)
     return Disturbance()

@@ -11,6 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._errors import InputError
+from ._params import REFERENCE_HOPPER, froude_scales
 from ._terrain import SEGMENT_LENGTH
 
 _FIELDS = ("v_lo", "v_hi", "e_lo", "e_hi", "dy_lo", "dy_hi", "th_lo", "th_hi", "k_lo", "k_hi")
@@ -163,25 +164,9 @@ def paper_templates(seg_length: float = SEGMENT_LENGTH) -> Templates:
 
 # --- size-independent (Froude-scaled) templates -------------------------------------------
 
-#: The hopper the paper's templates (eq 33) were written for: `m` (kg), `g` (m/s^2), `rho0` (m).
-REFERENCE_HOPPER = (80.0, 9.81, 1.0)
-
-
 def template_scales(hopper) -> dict:
-    """Froude scale factors of `hopper` against `REFERENCE_HOPPER`.
-
-    Lengths scale with `rho0`, speeds with `sqrt(g rho0)`, energies with `m g rho0`; angles
-    and the velocity gain `k` are dimensionless. Each factor is a ratio of the two hoppers'
-    scales, computed so that it is exactly `1.0` for the reference hopper.
-
-    Returns:
-        `{"length", "velocity", "energy"}` as Python floats.
-    """
-    m0, g0, l0 = REFERENCE_HOPPER
-    m, g, l = float(hopper.m), float(hopper.g), float(hopper.rho0)
-    length = l / l0
-    return {"length": length, "velocity": math.sqrt((g / g0) * length),
-            "energy": (m / m0) * (g / g0) * length}
+    """Froude scale factors of `hopper` against `REFERENCE_HOPPER` (`froude_scales`)."""
+    return froude_scales(hopper)
 
 
 def dimensionless_templates(templates: Templates | None = None) -> np.ndarray:
