@@ -1,4 +1,5 @@
-"""BHop sweeps on one CPU device against several forced CPU devices (issue 7, acceptance 1).
+"""BHop sweeps on one CPU device against several forced CPU devices
+(`benchmarks/README.md`, "Devices").
 
 Each device count runs in its own process (XLA reads `--xla_force_host_platform_device_count`
 once, at start-up). Every process loads the same cached plan for `reference`, runs each sweep

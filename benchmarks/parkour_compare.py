@@ -1,4 +1,5 @@
-"""Reactive planner (BHop, SLIP) against jaxhop's MPPC on the parkour courses (issue 8).
+"""Reactive planner (BHop, SLIP) against jaxhop's MPPC on the parkour courses
+(docs/parkour_reactive.md).
 
 For every course: the reactive plan for the MPPC leg (`jaxhop.parkour`), its incremental
 updates at the snapshots (optionally timed against full rebuilds), then seeded runs of

@@ -1,4 +1,5 @@
-"""Time one snapshot's incremental update against full rebuilds, repeated (issue 8).
+"""Time one snapshot's incremental update against full rebuilds, repeated
+(docs/parkour_reactive.md, "Incremental replanning").
 
 `parkour_compare.py --timing` times each update inside the course's update chain and
 rebuilds once; this script isolates one snapshot: the plan of the snapshot before it is

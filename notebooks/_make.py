@@ -105,7 +105,7 @@ print(f"failures: {failed.sum()}, at the first apex: {first.sum()}, "
 
 A constant -0.2 m/s² horizontal wind acts in every flight phase. The deadbeat does not
 know about it, so each stride ends slower than planned. The hopper reaches the goal
-*position*, but with the spec's 0.05 m/s velocity tolerance it never stops inside the goal
+*position*, but with the default 0.05 m/s velocity tolerance it never stops inside the goal
 box. Widening the velocity tolerance shows how much of the failure is that effect alone
 (see `docs/decisions.md`)."""),
         ("code", '''for tol in (0.05, 0.15, 0.25):

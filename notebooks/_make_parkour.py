@@ -18,7 +18,7 @@ CELLS = [
 Arslan & Saranli's reactive planner (2012) was built for a fixed terrain. MPPC (Albracht
 et al. 2024) replans a jump sequence after every jump on a changing course, without a
 formal domain of attraction. This notebook brings the reactive planner onto the MPPC
-courses (issue 8, `docs/parkour_reactive.md`):
+courses (`docs/parkour_reactive.md`):
 
 1. a course becomes a terrain with forbidden floor (restricted areas, edge margins);
 2. the templates are scaled (Froude) from the 80 kg, 1 m hopper to the MPPC leg;

@@ -1,4 +1,4 @@
-"""Touchdown and failure semantics on hand-built cases (SPEC section 3)."""
+"""Touchdown and failure semantics on hand-built cases (docs/decisions.md, "Execution")."""
 
 import jax.numpy as jnp
 import pytest

@@ -1,5 +1,6 @@
-"""The reactive planner on parkour courses (issue 8): course maps, Froude-scaled templates,
-incremental plan updates against full rebuilds, reactive runs with restricted areas."""
+"""The reactive planner on parkour courses (docs/parkour_reactive.md): course maps,
+Froude-scaled templates, incremental plan updates against full rebuilds, reactive runs
+with restricted areas."""
 
 import json
 import math

@@ -1,4 +1,7 @@
-"""SLIP stride and deadbeat checked against independent computations (SPEC section 13)."""
+"""SLIP stride and deadbeat checked against independent computations.
+
+The model and deadbeat are those of Arslan & Saranli 2012, section IV-A (eqs 10-16).
+"""
 
 import diffrax
 import jax

@@ -1,4 +1,4 @@
-"""SLIP adjustments of BHop plans (SPEC section 5, eqs 35-37)."""
+"""SLIP adjustments of BHop plans (Arslan & Saranli 2012, section VII-A, eqs 35-37)."""
 
 import math
 
@@ -195,8 +195,8 @@ def test_slip_reaches_the_goal_where_reversing_goals_made_it_cycle():
     # Under ground noise seed 0 the planner's goal block is 0.117 m too high. Without the
     # reversal rule the SLIP plan's last intermediate goals asked for forward shifts while
     # reversing, and runs from these apexes cycled through three policies until
-    # max_steps (session 5: 0 of 48 sweep states succeeded). The success test is the
-    # spec's: the true apex within 0.05 of the goal in every coordinate.
+    # max_steps (0 of 48 sweep states succeeded). The success test is the goal
+    # tolerance: the true apex within 0.05 of the goal in every coordinate.
     from jaxhop._cli import _perceived
     from jaxhop._execute import in_global_domain, run_batch
     from jaxhop._plan import build_plan
