@@ -32,7 +32,7 @@ Benchmarks:
   twin on 8 of those, scaled per initial condition; per-run outcome and step count
   compared.
 
-`"todo"` lists benchmarks not wired in (none now).
+`"todo"` lists benchmarks not wired in (empty).
 """
 
 from __future__ import annotations
