@@ -246,8 +246,9 @@ for i in range(len(starts)):
           f"{slip['steps'][i]} strides")'''),
     ("md", """The legs drawn at touchdown and liftoff show what differs from BHop: the SLIP
 foot lands ahead of the body and the body vaults over it, so the stance covers ground.
-jaxhop applies the BHop plan *without* the SLIP corrections of section VII-A (eqs 35-37;
-see the README), so some runs fail where the paper's succeed.
+This notebook runs the plain BHop plan, *without* the SLIP adjustments of section VII-A
+(eqs 35-37, which `--model slip` plans with: `docs/decisions.md`, "SLIP on BHop plans"),
+so some runs fail where the paper's succeed.
 
 ## A longer terrain (Fig. 21)
 
