@@ -147,7 +147,7 @@ def decompress(x_b, kd, hopper: Hopper, tol: Tolerances = STRIDE_TOL):
     return _phase(x_b, kd, hopper, _liftoff, tol)
 
 
-# Limits of kd / kc (SPEC section 13).
+# Limits of kd / kc (eq 14; `docs/slip.md`, "Deadbeat").
 KD_RATIO = (0.5, 2.0)
 
 

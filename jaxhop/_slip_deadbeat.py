@@ -50,7 +50,7 @@ from ._slip import (
     flat_touchdown,
 )
 
-# Control limits (SPEC section 13) and the touchdown-angle search interval.
+# Control limits (eq 14; `docs/slip.md`, "Deadbeat") and the touchdown-angle search interval.
 KAPPA_LO, KAPPA_HI = 10.0, 60.0  # kc rho0 / (m g)
 RATIO_LO, RATIO_HI = KD_RATIO  # kd / kc
 TH_LO, TH_HI = -jnp.pi / 3, jnp.pi / 3
@@ -354,7 +354,7 @@ def deadbeat_slip(apex, goal, h, hopper: Hopper, method: str = "gradient",
             in this map (the execution controller passes the planner's map), not on `h`.
 
     Returns:
-        `(u, ok)`: `u = (th_td, kc, kd)` clipped to the limits of SPEC section 13; `ok` when
+        `(u, ok)`: `u = (th_td, kc, kd)` clipped to the control limits; `ok` when
         no clipping was needed and the trial stride with `u` completes.
 
     Raises:

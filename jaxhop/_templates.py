@@ -19,7 +19,9 @@ _FIELDS = ("v_lo", "v_hi", "e_lo", "e_hi", "dy_lo", "dy_hi", "th_lo", "th_hi", "
 
 @dataclasses.dataclass(frozen=True)
 class SlipAdjust:
-    """SLIP adjustments of BHop templates (section VII-A, eqs 35-37; SPEC section 5).
+    """SLIP adjustments of BHop templates (section VII-A, eqs 35-37).
+
+    Why and how they were refitted: `docs/decisions.md`, "SLIP on BHop plans".
 
     `h(v) = cm (atan(c (v + co)) / pi - cs)` with `c = ca` for `v < co`, `cb` otherwise;
     the horizontal shift of a stride is limited to `[h(ydot_avg), -h(-ydot_avg)]` (eq 35),

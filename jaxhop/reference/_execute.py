@@ -193,7 +193,7 @@ def run_one(ctrl: Controller, apex0, *, true_terrain: Terrain | None = None, win
 
 
 def sweep_grid(terrain: Terrain, ydot0=0.5, dy=0.05, dz=0.05, z_range=None):
-    """Initial apexes on a `(y, z)` grid (SPEC section 12)."""
+    """Initial apexes on a `(y, z)` grid (Figs. 16, 17 and 20)."""
     y0, y1 = terrain.y_range
     if z_range is None:
         z_range = (float(terrain.heights.min()) + 1.0, float(terrain.heights.max()) + 2.6)

@@ -122,7 +122,7 @@ class Segments:
 
 
 def segments(terrain: Terrain, seg_length: float = SEGMENT_LENGTH) -> Segments:
-    """`floor(L / 2l)` segments per block, centred in it (SPEC section 2)."""
+    """`floor(L / 2l)` segments per block, centred in it (section VI-A)."""
     centres, blocks, edges = [], [], []
     for b in range(terrain.n_blocks):
         s, e, h = float(terrain.starts[b]), float(terrain.ends[b]), float(terrain.heights[b])
@@ -201,7 +201,7 @@ def deadbeat_bhop(apex, goal, h, hopper: Hopper):
     return np.array([y_lo - y_td, float(th), float(k)])
 
 
-# --- flight over the terrain (SPEC section 3) -----------------------------------------------
+# --- flight over the terrain (section IV-B) -----------------------------------------------
 
 
 def _crossings(p0, v, a, w):
