@@ -1,4 +1,7 @@
-"""Terrain: blocks, holes, ground segments, and the built-in maps (SPEC section 2)."""
+"""Terrain: blocks, holes, ground segments, and the built-in maps (paper section III-C).
+
+The JSON format of a terrain file is described in the README, "Command line".
+"""
 
 from __future__ import annotations
 
@@ -201,7 +204,7 @@ def builtin_terrain(name: str) -> Terrain:
 
 
 def terrain_from_dict(data, source: str = "terrain") -> Terrain:
-    """Validate and build a terrain from its JSON structure (SPEC section 2)."""
+    """Validate and build a terrain from its JSON structure (README, "Command line")."""
     if not isinstance(data, dict):
         raise InputError(f"{source}: expected a JSON object with 'blocks', got "
                          f"{type(data).__name__}")

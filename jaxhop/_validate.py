@@ -51,7 +51,7 @@ def number(value, field: str, limit: float | None = None, *, positive: bool = Fa
 # --- numbers on the command line ----------------------------------------------------------
 
 
-def numbers(text: str, n: int, field: str) -> list[float]:
+def numbers(text: str, field: str, n: int) -> list[float]:
     """`n` comma-separated finite numbers (`--apex 0.6,1.6,0.5`)."""
     if not isinstance(text, str):  # argparse turns a bare "--" value into a list
         raise InputError(f"{field}: expected {n} comma-separated numbers, got {text!r}")
@@ -77,7 +77,7 @@ def bounded(values, field: str, limit: float):
 
 def real(text: str, field: str, limit: float | None = None) -> float:
     """One finite number, with `|value| <= limit` where a limit is given."""
-    (v,) = numbers(text, 1, field)
+    (v,) = numbers(text, field, 1)
     return v if limit is None else bounded([v], field, limit)[0]
 
 

@@ -1,4 +1,7 @@
-"""Parkour courses: block obstacles and restricted floor areas, possibly changing (SPEC 14)."""
+"""Parkour courses: block obstacles and restricted floor areas, possibly changing.
+
+The JSON format is described in docs/mppc.md, "Course data".
+"""
 
 import json
 from dataclasses import dataclass
@@ -76,7 +79,7 @@ class Course:
         return Course(self.name, self.start, self.goal, self.margin_h, self.margin_v, env, ())
 
     def to_dict(self) -> dict:
-        """The course in the JSON format of SPEC section 14."""
+        """The course in its JSON format (docs/mppc.md, "Course data")."""
 
         def env_dict(env):
             return {
@@ -153,7 +156,7 @@ def _legal_endpoint(env: Environment, x: float, mh: float, field: str):
 
 
 def course_from_dict(data, default_name: str = "course") -> Course:
-    """Build and validate a `Course` from its JSON object (SPEC section 14).
+    """Build and validate a `Course` from its JSON object (docs/mppc.md, "Course data").
 
     **Arguments:**
     - `data`: the parsed JSON object.
