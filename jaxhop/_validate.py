@@ -89,14 +89,18 @@ def positive(text: str, field: str) -> float:
     return v
 
 
+def _whole(text: str, field: str, what: str) -> int:
+    if not isinstance(text, str):
+        raise InputError(f"{field}: expected {what}, got {text!r}")
+    try:
+        return int(text)
+    except ValueError:
+        raise InputError(f"{field}: expected {what}, got {text!r}") from None
+
+
 def count(text: str, field: str, hi: int) -> int:
     """A whole number in `[1, hi]` (`--max-steps`, `--chunk`): 2.5 is an error, not 2."""
-    if not isinstance(text, str):
-        raise InputError(f"{field}: expected a whole number, got {text!r}")
-    try:
-        v = int(text)
-    except ValueError:
-        raise InputError(f"{field}: expected a whole number, got {text!r}") from None
+    v = _whole(text, field, "a whole number")
     if not 1 <= v <= hi:
         raise InputError(f"{field}: must lie in [1, {hi}], got {v}")
     return v
@@ -104,12 +108,7 @@ def count(text: str, field: str, hi: int) -> int:
 
 def seed(text: str, field: str = "--seed") -> int:
     """A seed: a whole number in `[0, 2**63)`."""
-    if not isinstance(text, str):
-        raise InputError(f"{field}: expected a non-negative integer, got {text!r}")
-    try:
-        v = int(text)
-    except ValueError:
-        raise InputError(f"{field}: expected a non-negative integer, got {text!r}") from None
+    v = _whole(text, field, "a non-negative integer")
     if v < 0 or v >= 2**63:
         raise InputError(f"{field}: expected a non-negative integer below 2**63, got {text}")
     return v
