@@ -4,8 +4,8 @@ Courses: `load_course`, `list_courses`, `random_course`, `course_from_dict`, `Co
 `Environment`, `reference_results`. Robot: `Robot`, `foot_offset`, `knee_offset` (eqs
 1-4). Planning: `min_time_jump` (one pair, JAX), `MPPC` / `Settings` (one replan),
 `Replanner` (the replans of one run), `run_course` (the receding-horizon loop) with `Jump`,
-`Plan`, `ParkourResult`. Checking:
-`check_jump` (independent NumPy checker). Figures: `plot_run`.
+`Plan`, `ParkourResult`. Checking: `check_jump` (independent NumPy checker). Figures:
+`plot_run`.
 """
 
 from ._check import check_jump as check_jump
