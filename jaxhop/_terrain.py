@@ -1,4 +1,7 @@
-"""Terrain: blocks, holes, ground segments, and the built-in maps (SPEC section 2)."""
+"""Terrain: blocks, holes, ground segments, and the built-in maps (paper section III-C).
+
+The JSON format of a terrain file is described in the README, "Command line".
+"""
 
 from __future__ import annotations
 
@@ -13,6 +16,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._errors import InputError
+from ._validate import number as _number
+from ._validate import short as _short
 
 SEGMENT_LENGTH = 0.15
 # Limits on user terrains: beyond them a plan is out of reach anyway (the reference map has
@@ -186,25 +191,6 @@ def check_goal(terrain: Terrain, goal, field: str = "goal") -> tuple[float, floa
     return (y, z, ydot)
 
 
-def _short(value, n: int = 40) -> str:
-    text = repr(value)
-    return text if len(text) <= n else text[: n - 3] + "..."
-
-
-def _number(value, field: str, limit: float | None = None) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
-        raise InputError(f"{field}: expected a number, got {_short(value)}")
-    try:
-        value = float(value)
-    except OverflowError:
-        raise InputError(f"{field}: number too large, got {_short(value)}") from None
-    if not math.isfinite(value):
-        raise InputError(f"{field}: must be finite, got {value}")
-    if limit is not None and abs(value) > limit:
-        raise InputError(f"{field}: |{value:g}| exceeds the limit {limit:g}")
-    return value
-
-
 def builtin_terrains() -> tuple[str, ...]:
     return tuple(_BUILTIN)
 
@@ -218,7 +204,7 @@ def builtin_terrain(name: str) -> Terrain:
 
 
 def terrain_from_dict(data, source: str = "terrain") -> Terrain:
-    """Validate and build a terrain from its JSON structure (SPEC section 2)."""
+    """Validate and build a terrain from its JSON structure (README, "Command line")."""
     if not isinstance(data, dict):
         raise InputError(f"{source}: expected a JSON object with 'blocks', got "
                          f"{type(data).__name__}")

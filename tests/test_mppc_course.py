@@ -18,7 +18,7 @@ from jaxhop.mppc import (
     random_course,
     reference_results,
 )
-from jaxhop.mppc._cli import add_parser
+from jaxhop.parkour._cli import add_parser
 
 SHIPPED = [
     "mppc-hw-disturbances", "mppc-hw-dynamic-1", "mppc-hw-dynamic-2", "mppc-hw-dynamic-3",

@@ -474,7 +474,7 @@ def test_touchdown_in_restricted_area_is_classified(small_plans):
 def test_parkour_cli_reactive(tmp_path):
     import argparse
 
-    from jaxhop.mppc._cli import add_parser
+    from jaxhop.parkour._cli import add_parser
 
     path = tmp_path / "small.json"
     path.write_text(json.dumps(SMALL))

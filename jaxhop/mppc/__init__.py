@@ -1,10 +1,11 @@
-"""MPPC: receding-horizon parkour planning for the hopping leg (SPEC section 14).
+"""MPPC: receding-horizon parkour planning for the hopping leg (Albracht et al. 2024).
 
 Courses: `load_course`, `list_courses`, `random_course`, `course_from_dict`, `Course`,
 `Environment`, `reference_results`. Robot: `Robot`, `foot_offset`, `knee_offset` (eqs
 1-4). Planning: `min_time_jump` (one pair, JAX), `MPPC` / `Settings` (one replan),
-`run_course` (the receding-horizon loop) with `Jump`, `Plan`, `ParkourResult`. Checking:
-`check_jump` (independent NumPy checker). Figures: `plot_run`.
+`Replanner` (the replans of one run), `run_course` (the receding-horizon loop) with `Jump`,
+`Plan`, `ParkourResult`. Checking: `check_jump` (independent NumPy checker). Figures:
+`plot_run`.
 """
 
 from ._check import check_jump as check_jump
@@ -18,11 +19,12 @@ from ._course import reference_results as reference_results
 from ._jump import min_time_jump as min_time_jump
 from ._plan import MPPC as MPPC
 from ._plan import Jump as Jump
-from ._plan import ParkourResult as ParkourResult
 from ._plan import Plan as Plan
 from ._plan import Settings as Settings
-from ._plan import run_course as run_course
 from ._plot import plot_run as plot_run
 from ._robot import Robot as Robot
 from ._robot import foot_offset as foot_offset
 from ._robot import knee_offset as knee_offset
+from ._run import ParkourResult as ParkourResult
+from ._run import Replanner as Replanner
+from ._run import run_course as run_course

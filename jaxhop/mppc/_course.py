@@ -1,14 +1,19 @@
-"""Parkour courses: block obstacles and restricted floor areas, possibly changing (SPEC 14)."""
+"""Parkour courses: block obstacles and restricted floor areas, possibly changing.
+
+The JSON format is described in docs/mppc.md, "Course data".
+"""
 
 import json
-import math
 from dataclasses import dataclass
+from functools import partial
 from importlib import resources
 from pathlib import Path
 
 import numpy as np
 
 from .._errors import InputError
+from .._validate import number
+from .._validate import short as _short
 
 _DATA = "data/courses"
 _TOP_KEYS = {"name", "start", "goal", "obstacles", "restricted", "margins", "snapshots"}
@@ -20,6 +25,7 @@ MAX_MARGIN = 1.0  # margins (m)
 MAX_ITEMS = 1_000  # obstacles, restricted areas, snapshots
 MAX_FILE_BYTES = 16 * 2**20
 MAX_NAME = 200
+_number = partial(number, limit=MAX_COORDINATE)  # a finite JSON number of sane size
 
 
 @dataclass(frozen=True, eq=False)
@@ -73,7 +79,7 @@ class Course:
         return Course(self.name, self.start, self.goal, self.margin_h, self.margin_v, env, ())
 
     def to_dict(self) -> dict:
-        """The course in the JSON format of SPEC section 14."""
+        """The course in its JSON format (docs/mppc.md, "Course data")."""
 
         def env_dict(env):
             return {
@@ -93,30 +99,6 @@ class Course:
         if self.snapshots:
             out["snapshots"] = [{"from_jump": k, **env_dict(e)} for k, e in self.snapshots]
         return out
-
-
-def _short(value, n: int = 40) -> str:
-    text = repr(value)
-    return text if len(text) <= n else text[: n - 3] + "..."
-
-
-def _number(value, field: str, positive: bool = False, nonneg: bool = False,
-            limit: float = MAX_COORDINATE) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise InputError(f"{field}: expected a number, got {_short(value)}")
-    try:
-        value = float(value)
-    except OverflowError:
-        raise InputError(f"{field}: number too large, got {_short(value)}") from None
-    if not math.isfinite(value):
-        raise InputError(f"{field}: must be finite, got {value!r}")
-    if positive and value <= 0:
-        raise InputError(f"{field}: must be > 0, got {value!r}")
-    if nonneg and value < 0:
-        raise InputError(f"{field}: must be >= 0, got {value!r}")
-    if abs(value) > limit:
-        raise InputError(f"{field}: |{value:g}| exceeds the limit {limit:g}")
-    return value
 
 
 def _items(value, field: str) -> list:
@@ -174,7 +156,7 @@ def _legal_endpoint(env: Environment, x: float, mh: float, field: str):
 
 
 def course_from_dict(data, default_name: str = "course") -> Course:
-    """Build and validate a `Course` from its JSON object (SPEC section 14).
+    """Build and validate a `Course` from its JSON object (docs/mppc.md, "Course data").
 
     **Arguments:**
     - `data`: the parsed JSON object.

@@ -1,4 +1,4 @@
-"""Receding-horizon MPPC solved exactly over a grid of landing points (SPEC section 14).
+"""Receding-horizon MPPC solved exactly over a grid of landing points (docs/mppc.md).
 
 Per replan: landing candidates in the horizon `(x_s, x_t]` (a fixed absolute grid plus
 the exact margin and restricted-area boundaries), the minimum-time jump for every pair
@@ -7,15 +7,15 @@ jumps that gives the exact minimum-total-time path with `N` jumps for every `N` 
 """
 
 import math
-import time
 import weakref
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from functools import partial
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._batching import bucket
 from ._course import Course, Environment
 from ._jump import min_time_jump_tan
 from ._robot import Robot
@@ -52,10 +52,6 @@ class Settings:
             raise ValueError("Settings.lookahead: must be > 0")
         if self.dead_ends not in ("static", "always", "never"):
             raise ValueError("Settings.dead_ends: one of 'static', 'always', 'never'")
-
-
-def _bucket(n: int, step: int) -> int:
-    return max(step, step * math.ceil(n / step))
 
 
 def max_reach(robot: Robot, drop: float) -> float:
@@ -225,7 +221,7 @@ class MPPC:
     """Receding-horizon minimum-flight-time parkour planner (exact over a landing grid).
 
     **Arguments:**
-    - `robot`: the leg (defaults to SPEC section 14).
+    - `robot`: the leg (default: the paper's, `Robot()`).
     - `settings`: grid spacing, lookahead, dead-end avoidance (`Settings`).
     """
 
@@ -254,7 +250,7 @@ class MPPC:
             k = max(k, len(e.front))
             for b in e.back:
                 local = max(local, int(np.sum((e.back >= b) & (e.front < b + BEHIND + reach))))
-        sizes = (_bucket(window + 2, 16), _bucket(band + 1, 8), _bucket(k, 4), local)
+        sizes = (bucket(window + 2, 16), bucket(band + 1, 8), bucket(k, 4), local)
         self._size_cache[course] = sizes
         return sizes
 
@@ -274,7 +270,7 @@ class MPPC:
         and the goal count as points. Returns a boolean array over `x`.
         """
         _, band, ksize, local = self._sizes(course)
-        n = _bucket(len(x), 64)
+        n = bucket(len(x), 64)
         valid = legal.copy()
         valid[0] |= abs(x[0] - course.start) < _EPS
         xp = np.concatenate([x, x[-1] + 10 + np.arange(n - len(x))])
@@ -363,109 +359,3 @@ def _backtrack(best, cost, target, n_jumps):
         nodes.append(int(i[np.argmin(total)]))
     nodes.append(0)
     return nodes[::-1]
-
-
-@dataclass
-class ParkourResult:
-    """Outcome of a receding-horizon run (keys of SPEC section 15 in `to_json`)."""
-
-    course: str
-    planner: str
-    finished: bool
-    executed: list
-    replan_ms: list
-    violations: list
-    plans: list = field(default_factory=list)
-    failure: str | None = None
-    fallbacks: int = 0
-    notes: list = field(default_factory=list)
-
-    @property
-    def flight_time(self) -> float:
-        return float(sum(j.t for j in self.executed))
-
-    def to_json(self) -> dict:
-        ms = np.asarray(self.replan_ms, float)
-        stats = ({"min": float(ms.min()), "median": float(np.median(ms)), "max": float(ms.max())}
-                 if ms.size else {"min": None, "median": None, "max": None})
-        return {
-            "course": self.course,
-            "planner": self.planner,
-            "finished": bool(self.finished),
-            "jumps": len(self.executed),
-            "flight_time": self.flight_time,
-            "replan_ms": stats,
-            "violations": len(self.violations),
-            "violation_details": self.violations,
-            "failure": self.failure,
-            "fallback_replans": self.fallbacks,
-            "notes": self.notes,
-            "executed": [j.to_dict() for j in self.executed],
-        }
-
-
-def run_course(course: Course, planner: MPPC | None = None, max_jumps: int = 200,
-               check: bool = True, warmup: bool = True, on_jump=None) -> ParkourResult:
-    """Run the receding-horizon loop on a course, executing each planned first jump exactly.
-
-    Replan `k` (0-based) sees the snapshot in force at `k`. Every executed jump goes
-    through the independent checker (`check_jump`).
-
-    **Arguments:**
-    - `course`: the course (use `course.final()` for `--final-snapshot`).
-    - `planner`: an `MPPC` (default settings if omitted).
-    - `max_jumps`: give up after this many jumps.
-    - `check`: run the checker on every executed jump.
-    - `warmup`: plan the first horizon a few times, untimed, so that compilation (once
-      per set of padded sizes) is not counted in the replan times.
-    - `on_jump`: called with the robot's new position after every executed jump
-      (progress display).
-
-    **Returns:** a `ParkourResult`; per-replan wall times include everything a replan
-    does (a changed environment's candidates and reachability included).
-    """
-    from ._check import check_jump
-
-    planner = planner or MPPC()
-    x, z = course.start, float(course.environment_at(0).surface(course.start))
-    if warmup:  # compile, then a few more calls so that caches and allocators settle
-        data = _EnvData(planner, course, course.environment_at(0))
-        for _ in range(5):
-            planner.replan(course, data, x, z)
-    cache: dict[int, _EnvData] = {}
-    result = ParkourResult(course.name, "mppc", False, [], [], [])
-    for k in range(max_jumps):
-        if abs(x - course.goal) < 1e-9:
-            break
-        env = course.environment_at(k)
-        t0 = time.perf_counter()
-        data = cache.get(id(env))
-        if data is None:
-            data = cache[id(env)] = _EnvData(planner, course, env)
-        plan = planner.replan(course, data, x, z)
-        result.replan_ms.append((time.perf_counter() - t0) * 1e3)
-        if plan is None:
-            result.failure = f"no solution at x={x:.3f}"
-            break
-        result.plans.append(plan)
-        result.fallbacks += plan.fallback
-        jump = plan.jumps[0]
-        result.executed.append(jump)
-        if check:
-            moved = abs(float(env.surface(jump.xs)) - jump.zs) > 1e-9
-            if moved:
-                result.notes.append(f"replan {k}: the surface under the robot at "
-                                    f"x={jump.xs:.3f} changed in this snapshot")
-            for kind, msg in check_jump(planner.robot, course, env, jump, not moved):
-                result.violations.append({"jump": k, "kind": kind, "message": msg})
-        # The robot stands on the planned landing point; x1, z1 of eqs 8-9 agree with it
-        # to rounding, and the checker verifies that.
-        x = plan.nodes[1]
-        z = float(env.surface(x))
-        if on_jump is not None:
-            on_jump(x)
-    result.finished = abs(x - course.goal) < 1e-9
-    if not result.finished and result.failure is None:
-        result.failure = f"gave up after {max_jumps} jumps"
-    return result
-

@@ -7,7 +7,7 @@ import jax.numpy as jnp
 
 
 class Robot(eqx.Module):
-    """Point-mass hopping leg with a fixed flight configuration (SPEC section 14).
+    """Point-mass hopping leg with a fixed flight configuration (docs/mppc.md, "Model").
 
     All fields are static Python floats: they are the paper's constants, not swept values.
     Angles are in radians from the horizontal; lengths in metres; times in seconds.

@@ -1,22 +1,98 @@
-"""`parkour --planner reactive` (and `--planner mppc --noise ...`): issue 8."""
+"""`jaxhop parkour`: MPPC or the 2012 reactive planner on a parkour course.
+
+`--planner mppc` runs the receding-horizon planner of Albracht et al. (docs/mppc.md),
+executing each planned first jump exactly, or under a disturbance with `--noise`;
+`--planner reactive` runs the reactive planner of Arslan & Saranli (2012) on the course
+turned into a terrain (docs/parkour_reactive.md).
+"""
 
 from __future__ import annotations
 
-import json
 import sys
 
+from .. import _validate as v
 from .._errors import InputError
+from ..mppc._cli import check_grid, run_mppc, write_json
+from ..mppc._course import list_courses, load_course
+from ..mppc._plan import Settings
+
+MAX_RUNS = 4096
+PLANNERS = ("mppc", "reactive")
 
 
-def run_parkour(args, course, write) -> int:
+def add_parser(subparsers):
+    """Add `parkour` to an argparse subparsers object; it sets `func=run`.
+
+    **Arguments:**
+    - `subparsers`: the object returned by `ArgumentParser.add_subparsers()`.
+
+    **Returns:** the new subparser.
+    """
+    p = subparsers.add_parser(
+        "parkour",
+        help="receding-horizon parkour planning for the hopping leg (MPPC)",
+        description="Run the MPPC receding-horizon planner on a parkour course, executing "
+        "each planned first jump and checking it. Shipped courses: "
+        + ", ".join(list_courses()),
+    )
+    p.add_argument("--course", required=True, metavar="NAME|FILE",
+                   help="a shipped course name or a course JSON file")
+    p.add_argument("--planner", default="mppc", choices=PLANNERS,
+                   help="mppc, or reactive: the 2012 reactive planner for the leg "
+                        "(docs/parkour_reactive.md)")
+    p.add_argument("--model", default="bhop", choices=["bhop", "slip"],
+                   help="reactive planner: the simulated model (default bhop)")
+    p.add_argument("--noise", default="none", choices=["none", "wind", "sensor", "landing"],
+                   help="disturbance (Froude-scaled; docs/parkour_reactive.md)")
+    p.add_argument("--seed", type=v.arg_type(v.seed, "--seed"), default=0,
+                   help="seed of initial states and noise")
+    p.add_argument("--runs", type=v.arg_type(v.count, "--runs", MAX_RUNS), default=1,
+                   help="reactive planner: seeded runs (run 0 is reported in full)")
+    p.add_argument("--segments", default="lattice", choices=["lattice", "centred"],
+                   help="reactive planner: floor segments on the lattice grid, so snapshot "
+                        "updates redo less (default), or centred in every block")
+    p.add_argument("--final-snapshot", action="store_true",
+                   help="plan the course's last snapshot as a fixed course")
+    p.add_argument("--grid", type=v.arg_type(v.real, "--grid"), default=Settings.grid,
+                   help="landing grid spacing in metres (default %(default)s)")
+    p.add_argument("--json", metavar="PATH", help="write the result JSON here")
+    p.add_argument("--plot", metavar="PATH", help="save a figure of the run here")
+    p.set_defaults(func=run)
+    return p
+
+
+def run(args) -> int:
+    """Run the `parkour` subcommand.
+
+    **Arguments:**
+    - `args`: the parsed namespace (`course`, `planner`, `noise`, `seed`, `runs`, `model`,
+      `segments`, `final_snapshot`, `grid`, `json`, `plot`).
+
+    **Returns:** exit status 0 (the run's outcome is in the summary and the JSON).
+
+    **Raises:** `InputError` for a bad course or option.
+    """
+    planner = getattr(args, "planner", "mppc")
+    if planner not in PLANNERS:
+        raise InputError(f"--planner: unknown planner {planner!r} (choices: mppc, reactive)")
+    check_grid(getattr(args, "grid", Settings.grid))
+    course = load_course(args.course)
+    if getattr(args, "final_snapshot", False):
+        course = course.final()
+    if planner == "reactive" or getattr(args, "noise", "none") != "none":
+        return run_parkour(args, course)
+    return run_mppc(args, course)
+
+
+def run_parkour(args, course) -> int:
     """Run the reactive planner (or MPPC under a disturbance) and report like `parkour`."""
     noise = getattr(args, "noise", "none")
     if getattr(args, "plot", None):
         raise InputError("--plot: only with --planner mppc and --noise none")
     seed = int(getattr(args, "seed", 0))
     runs = int(getattr(args, "runs", 1))
-    if runs < 1 or runs > 4096:
-        raise InputError(f"--runs: must be in [1, 4096], got {runs}")
+    if runs < 1 or runs > MAX_RUNS:
+        raise InputError(f"--runs: must be in [1, {MAX_RUNS}], got {runs}")
     if getattr(args, "planner", "mppc") == "reactive":
         from ._api import reactive_parkour
 
@@ -41,5 +117,5 @@ def run_parkour(args, course, write) -> int:
         print(f"success rate {out['success_rate']:.3f} over {out['runs']} runs; plan built in "
               f"{out['build_s']:.1f} s; {out['n_snapshots']} snapshot updates")
     if getattr(args, "json", None):
-        write(args.json, lambda f: json.dump(out, f, indent=1), "--json")
+        write_json(args.json, out)
     return 0

@@ -1,9 +1,9 @@
-"""jaxhop's MPPC under the disturbances of the comparison (issue 8).
+"""jaxhop's MPPC under the disturbances of the comparison (docs/parkour_reactive.md).
 
 `jaxhop.mppc.run_course` executes every planned first jump exactly. Here the same
-receding-horizon loop (same planner, same replans on the snapshot in force) executes
-each jump under a disturbance, Froude-scaled like the reactive planner's (the leg's
-length `rt`, its gravity):
+receding-horizon replans (`jaxhop.mppc.Replanner`: same planner, same replans on the
+snapshot in force) execute each jump under a disturbance, the reactive planner's
+(`jaxhop._params.disturbance_for`), Froude-scaled to the leg (length `rt`, its gravity):
 
 * `sensor`: the planner sees the robot's contact point `+-0.05 rt` off (uniform, fresh per
   replan) and plans from there; the jump (speed, angle) is executed from the true point,
@@ -24,24 +24,38 @@ goal (the reactive planner's goal tolerance in `y`).
 from __future__ import annotations
 
 import math
-import time
 
 import numpy as np
 
-from ..mppc._check import check_jump
-from ..mppc._course import Course
-from ..mppc._plan import MPPC, Jump, Settings, _EnvData, run_course
-from ..mppc._robot import Robot
+from .._flight import COLLISION, RESULT_NAMES
+from .._params import Hopper, check_noise, disturbance_for
+from ..mppc import MPPC, Course, Jump, Replanner, Robot, Settings, check_jump, run_course
+from ..mppc._run import ms_stats
+from ._map import MARGIN, PARKOUR_FAILURES, RESTRICTED
 
-NOISE = ("none", "wind", "sensor", "landing")
+#: The disturbances of a parkour run (`ground` has no meaning on a course).
+PARKOUR_NOISE = ("none", "wind", "sensor", "landing")
+_COLLISION = RESULT_NAMES[COLLISION]
+_RESTRICTED = PARKOUR_FAILURES[RESTRICTED - 1]
+_MARGIN = PARKOUR_FAILURES[MARGIN - 1]
+
+
+def leg_disturbance(noise: str, robot: Robot):
+    """`(sensor, wind, landing)` half-widths / acceleration of `noise` for the MPPC leg.
+
+    `disturbance_for` with the leg as a hopper (`rho0 = r_takeoff`, its `g`): sensor noise
+    on the contact point and landing noise `0.05 rt`, wind `-0.2 g / 9.81`.
+    """
+    d = disturbance_for(check_noise(noise, PARKOUR_NOISE),
+                        Hopper(g=robot.g, rho0=robot.r_takeoff))
+    return float(d.sensor[0]), float(d.wind), float(d.landing)
 
 
 def run_mppc_noisy(course: Course, noise: str = "none", seed: int = 0,
                    planner: MPPC | None = None, max_jumps: int = 60) -> dict:
     """One MPPC run under a disturbance; the `parkour` result keys plus `success`."""
-    if noise not in NOISE:
-        raise ValueError(f"noise must be one of {', '.join(NOISE)}, got {noise!r}")
     planner = planner or MPPC(settings=Settings())
+    sensor, wind, land = leg_disturbance(noise, planner.robot)
     robot: Robot = planner.robot
     if noise == "none":
         out = run_course(course, planner).to_json()
@@ -50,16 +64,11 @@ def run_mppc_noisy(course: Course, noise: str = "none", seed: int = 0,
         return out
     rng = np.random.default_rng(seed)
     leg = robot.r_takeoff
-    sensor = 0.05 * leg if noise == "sensor" else 0.0
-    land = 0.05 * leg if noise == "landing" else 0.0
-    wind = -0.2 * robot.g / 9.81 if noise == "wind" else 0.0
     tol = 0.05 * leg
     x = course.start
     z = float(course.environment_at(0).surface(x))
-    data0 = _EnvData(planner, course, course.environment_at(0))
-    for _ in range(3):  # compile
-        planner.replan(course, data0, x, z)
-    cache: dict = {}
+    replan = Replanner(planner, course)
+    replan.warm_up(x, z, 3)  # compile
     executed, replan_ms, violations = [], [], []
     failure = None
     finished = False
@@ -67,14 +76,9 @@ def run_mppc_noisy(course: Course, noise: str = "none", seed: int = 0,
         if abs(x - course.goal) <= tol:
             finished = True
             break
-        env = course.environment_at(k)
         x_meas = x + rng.uniform(-1.0, 1.0) * sensor
-        t0 = time.perf_counter()
-        data = cache.get(id(env))
-        if data is None:
-            data = cache[id(env)] = _EnvData(planner, course, env)
-        plan = planner.replan(course, data, x_meas, float(env.surface(x_meas)))
-        replan_ms.append((time.perf_counter() - t0) * 1e3)
+        plan, env, ms = replan(k, x_meas)
+        replan_ms.append(ms)
         if plan is None:
             failure = f"no solution at x={x:.3f}"
             break
@@ -82,20 +86,20 @@ def run_mppc_noisy(course: Course, noise: str = "none", seed: int = 0,
         shift = x - x_meas
         flown = Jump(x, z, j.v, j.theta, j.t, j.x1 + shift, j.z1)
         for kind, msg in check_jump(robot, course, env, flown, check_takeoff=False):
-            if kind in ("foot_clearance", "knee_clearance", "collision"):
+            if kind in ("foot_clearance", "knee_clearance", _COLLISION):
                 violations.append({"jump": k, "kind": kind, "message": msg})
         x1 = plan.nodes[1] + shift + 0.5 * wind * j.t**2 + rng.uniform(-1.0, 1.0) * land
         z1 = float(env.surface(x1))
         if z1 > j.z1 + 1e-9:
-            violations.append({"jump": k, "kind": "collision",
+            violations.append({"jump": k, "kind": _COLLISION,
                                "message": f"lands at {x1:.4f} on a surface {z1:.3f} above the "
                                           f"planned {j.z1:.3f}"})
         if np.any((env.restricted_lo < x1) & (x1 < env.restricted_hi)):
-            violations.append({"jump": k, "kind": "restricted",
+            violations.append({"jump": k, "kind": _RESTRICTED,
                                "message": f"lands at {x1:.4f} in a restricted area"})
         edges = np.concatenate([env.front, env.back])
         if edges.size and np.min(np.abs(x1 - edges)) < course.margin_h:
-            violations.append({"jump": k, "kind": "margin",
+            violations.append({"jump": k, "kind": _MARGIN,
                                "message": f"lands at {x1:.4f} within the edge margin"})
         # The fall to a lower surface adds flight time.
         t = j.t + (math.sqrt(2.0 * (j.z1 - z1) / robot.g) if z1 < j.z1 else 0.0)
@@ -107,14 +111,11 @@ def run_mppc_noisy(course: Course, noise: str = "none", seed: int = 0,
         failure = f"gave up after {max_jumps} jumps"
     if not finished and failure is None:
         failure = "not at the goal"
-    ms = np.asarray(replan_ms)
     return {
         "course": course.name, "planner": "mppc", "noise": noise, "seed": int(seed),
         "finished": bool(finished), "jumps": len(executed),
         "flight_time": float(sum(e["t"] for e in executed)),
-        "replan_ms": ({"min": float(ms.min()), "median": float(np.median(ms)),
-                       "max": float(ms.max())} if ms.size else
-                      {"min": None, "median": None, "max": None}),
+        "replan_ms": ms_stats(replan_ms),
         "violations": len(violations), "violation_details": violations, "failure": failure,
         "executed": executed, "success": bool(finished and not violations),
     }
