@@ -29,6 +29,7 @@ _DEFAULT_GRID = PairGrid()
 
 def plan_key(terrain: Terrain, goal, templates: Templates, hopper: Hopper,
              grid: PairGrid = _DEFAULT_GRID) -> str:
+    """SHA-256 (hex) of everything a plan depends on, the package version and file format."""
     from . import __version__
 
     payload = {
@@ -45,11 +46,13 @@ def plan_key(terrain: Terrain, goal, templates: Templates, hopper: Hopper,
 
 
 def cache_dir() -> str:
+    """`$JAXHOP_CACHE`, default `~/.cache/jaxhop`."""
     return os.environ.get("JAXHOP_CACHE", os.path.join(os.path.expanduser("~"), ".cache",
                                                        "jaxhop"))
 
 
 def save_plan(plan: Plan, path: str, key: str) -> None:
+    """Write `plan` to `path` (through a temporary file, so a reader never sees half of it)."""
     p = plan.prepares.tocsr()
     tmp = path + ".tmp"
     with open(tmp, "wb") as f:

@@ -165,7 +165,7 @@ def _changed(old: CourseMap, new: CourseMap):
 
     Returns `(k, 3)` rows `(start, end, plan height)` of every block that is in one map
     only (both versions of a changed block), plus the zero-width padding blocks at the
-    map's end (`_pad_terrain`) where the last block changed.
+    map's end (`pad_terrain`) where the last block changed.
     """
     so, sn = old.signature(), new.signature()
     old_set, new_set = set(so), set(sn)
