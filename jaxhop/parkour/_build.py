@@ -1,11 +1,13 @@
 """Reactive plans on a course map, built in full or updated incrementally.
 
-`build_course_plan` runs the stages of `jaxhop.build_plan` (situate, candidate pairs,
-screen, instantiate, goal policies, prepares, safety sampling, deploy) with one change:
+`build_course_plan` runs the stages of `jaxhop.build_plan` (`jaxhop._stages`: situate,
+candidate pairs, screen, instantiate, goal policies, prepares, safety sampling, deploy)
+with one change:
 policies are situated only on the map's allowed blocks (restricted floor and margin
 bands carry segments, so that `Plan.table()` stays consistent, but none of their situated
 policies is ever instantiated, prepared or deployed). It keeps what an update needs: every
-screened pair's result, the prepares rows and the robustness scores.
+screened pair's result, the prepares rows and the robustness scores. A full build is an
+update with nothing to reuse.
 
 With `previous`, `build_course_plan` updates such a plan for a new course map (a
 snapshot) and recomputes only what the change can affect. The *changed blocks* are every
@@ -14,15 +16,15 @@ kind)`, old and new versions alike. Situated policies on unchanged blocks keep t
 segment (their ids are remapped); those on changed blocks are *new*. Then:
 
 * a pair `(i, j)` is recomputed iff `i` or `j` is new, or a changed block can bind one of
-  its collision clauses in some cell of its grid (`_Context.ascent_binds` on `i`'s segment,
-  `_Context.descent_binds` on `j`'s; closed-form bounds of the clauses of
+  its collision clauses in some cell of its grid (`Reach.ascent_binds` on `i`'s segment,
+  `Reach.descent_binds` on `j`'s; closed-form bounds of the clauses of
   `ascent_y_bounds` / `descent_y_bounds`). Only blocks higher than the segment (`h + rho0`
   for the rise) count, on the side the velocity range can reach, within the distance the
   COM (foot) covers while it is below the block's top. All other pairs keep their screened
   result, goal and margins; a recomputed old pair keeps its old screen (it depends on no
   block);
 * a prepares row `P[a, :]` is remapped from the old row iff the goal is unchanged and its
-  nominal descent meets no changed block (`_Context.touched`: the foot's `y` while it is
+  nominal descent meets no changed block (`Reach.touched`: the foot's `y` while it is
   below the block's top, until it reaches the lowest block); a robustness score likewise
   for the whole probe box;
 * goal policies are reused iff every candidate is an old policy and no changed block can
@@ -359,6 +361,24 @@ def _probes_held(ctx: _Context, up: _Update | None, goals, is_goal, from_old):
     return held, int(redo.any(axis=1).sum()), int(pol.size)
 
 
+def _update_stats(ctx: _Context, up: _Update | None, counts: dict, n_rows: int, n_pol: int,
+                  n_probes: int, reused_goal: bool) -> dict:
+    """The course keys of `CoursePlan.stats`: what was recomputed, what changed."""
+    return {
+        "n_allowed_situated": int(ctx.sit_allowed.sum()),
+        "incremental": up is not None,
+        "recomputed_pairs": int(counts["n_pairs"]),
+        "screened_pairs_computed": int(counts["screened"]),
+        "instantiated_pairs_computed": int(counts["instantiated"]),
+        "recomputed_prepares_rows": int(n_rows),
+        "recomputed_robustness": n_pol,
+        "recomputed_probes": n_probes,
+        "reused_goal_policies": bool(reused_goal),
+        "new_situated": int((up.new_to_old < 0).sum()) if up else int(ctx.n_sit),
+        "changed_blocks": [] if up is None else up.changed.tolist(),
+    }
+
+
 def build_course_plan(cmap: CourseMap, templates: Templates, hopper: Hopper, *,
                       grid: PairGrid = _GRID, pickbest=by_robustness,
                       previous: CoursePlan | None = None) -> CoursePlan:
@@ -409,19 +429,8 @@ def build_course_plan(cmap: CourseMap, templates: Templates, hopper: Hopper, *,
     laps("deploy")
     stats = S.counts(ctx, pairs.counts["n_pairs"], pairs.key.size, sit, is_goal, order,
                      count_edges(p, sit), int((~keep).sum()))
-    stats.update({
-        "n_allowed_situated": int(ctx.sit_allowed.sum()),
-        "incremental": up is not None,
-        "recomputed_pairs": int(pairs.counts["n_pairs"]),
-        "screened_pairs_computed": int(pairs.counts["screened"]),
-        "instantiated_pairs_computed": int(pairs.counts["instantiated"]),
-        "recomputed_prepares_rows": int(n_rows),
-        "recomputed_robustness": n_pol,
-        "recomputed_probes": n_probes,
-        "reused_goal_policies": bool(reused_goal),
-        "new_situated": int((up.new_to_old < 0).sum()) if up else int(n_sit),
-        "changed_blocks": [] if up is None else up.changed.tolist(),
-    } | laps.stats())
+    stats |= _update_stats(ctx, up, pairs.counts, n_rows, n_pol, n_probes, reused_goal)
+    stats |= laps.stats()
     plan = Plan(ctx.terrain, templates, hopper, goal, sit, tgt, goals, safety, margin,
                 is_goal, robustness, p.tocsr(), order, stats)
     return CoursePlan(cmap, plan, pairs.key, pairs.found, pairs.goal, pairs.margin,
