@@ -22,6 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 
+from ._batching import chunked_map
 from ._bhop import safe_sqrt
 from ._flight import COLLISION, OK, SOLVER, _crossings, _pos, touchdown
 from ._params import Hopper
@@ -292,7 +293,7 @@ def slip_strides(apex, u, terrain: Terrain, hopper: Hopper, wind=0.0,
 
     A vmapped diffrax solve steps every lane until the slowest lane of its batch ends;
     chunks of 512 waste fewer steps than one large batch, and on a CPU each device uses
-    about one core (`_plan._map_chunks`).
+    about one core (`_batching.chunked_map`).
 
     Arguments:
         apex, u: `(n, 3)` arrays.
@@ -300,12 +301,10 @@ def slip_strides(apex, u, terrain: Terrain, hopper: Hopper, wind=0.0,
     Returns:
         `(next_apex, code, foothold)` as NumPy arrays with `n` rows.
     """
-    from ._plan import _map_chunks
-
     apex, u = np.atleast_2d(np.asarray(apex, float)), np.atleast_2d(np.asarray(u, float))
     if apex.shape != u.shape or apex.shape[1:] != (3,):
         raise ValueError(f"apex and u must both be (n, 3), got {apex.shape} and {u.shape}")
-    return _map_chunks(_strides_jit, apex.shape[0], _STRIDE_CHUNK, (apex, u),
+    return chunked_map(_strides_jit, apex.shape[0], _STRIDE_CHUNK, (apex, u),
                        (terrain, hopper, wind, tol))
 
 

@@ -5,11 +5,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from jaxhop._cache import get_plan
 from jaxhop._deploy import check_order
 from jaxhop._execute import first_match, run_batch, run_one, sweep
 from jaxhop._flight import OK, SUCCESS, touchdown
 from jaxhop._params import Disturbance, disturbance_for
-from jaxhop._plan import build_plan, get_plan
+from jaxhop._plan import build_plan
 from jaxhop._regions import template_domain_contains
 from jaxhop._terrain import builtin_terrain, segments
 

@@ -112,7 +112,7 @@ def test_candidate_situated_uses_the_slip_foot():
 
 
 def test_slip_cache_key_differs():
-    from jaxhop._plan import plan_key
+    from jaxhop._cache import plan_key
 
     terrain = builtin_terrain("flat")
     a = plan_key(terrain, terrain.goal, templates_for("bhop"), HOPPER)
