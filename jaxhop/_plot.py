@@ -368,7 +368,7 @@ def nominal_controls(plan: Plan, run: dict) -> np.ndarray:
     import jax
     import jax.numpy as jnp
 
-    from ._execute import decide
+    from ._models import decide
 
     steps = int(run["steps"])
     if steps == 0:
@@ -411,8 +411,8 @@ def open_loop_replay(plan: Plan, run: dict, *, disturbance=None, key=None,
     import jax
     import jax.numpy as jnp
 
-    from ._execute import bhop_stride
     from ._flight import MAX_STEPS, OK, SUCCESS
+    from ._models import bhop_stride
     from ._params import Disturbance
 
     if mode not in ("controls", "goals"):
