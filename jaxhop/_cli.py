@@ -410,7 +410,7 @@ def cmd_run(args) -> int:
 
     apex = _floats(args.apex, 3, "--apex")
     if args.animate:
-        from ._plot import animation_writer
+        from ._animate import animation_writer
 
         try:  # a bad name or a missing encoder fails before any work
             animation_writer(args.animate, 25)
@@ -438,7 +438,7 @@ def cmd_run(args) -> int:
                           model=args.model, wind=float(disturbance.wind))
         _save(fig, args.plot)
     if args.animate:
-        from ._plot import animate_run
+        from ._animate import animate_run
 
         try:
             animate_run(terrain, {k: v[0] for k, v in r.items()}, args.animate,

@@ -9,8 +9,9 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.colors import ListedColormap  # noqa: E402
 
-from ._flight import RESULT_NAMES  # noqa: E402
+from ._models import model_for  # noqa: E402
 from ._plan import Plan  # noqa: E402
+from ._result import RESULT_NAMES  # noqa: E402
 from ._terrain import Terrain  # noqa: E402
 
 
@@ -47,7 +48,7 @@ def global_domain_figure(terrain: Terrain, states: np.ndarray, inside: np.ndarra
 # --- run geometry shared by the run figures and the animation ----------------------------
 
 
-def _ballistic(y0, z0, vy, vz, t, g, wind=0.0):
+def ballistic(y0, z0, vy, vz, t, g, wind=0.0):
     return y0 + vy * t + 0.5 * wind * t**2, z0 + vz * t - 0.5 * g * t**2
 
 
@@ -74,6 +75,7 @@ def stride_paths(apexes: np.ndarray, footholds: np.ndarray, rho0: float = 1.0,
         at touchdown and liftoff, `foot` the foothold `(y, h)`, `apex` and `t_down` the
         descent's start and duration, `liftoff` = `(y, z, ydot, zdot, t_up)` (or None).
     """
+    leg_touchdown = not model_for(model).instant_stance
     apexes = np.asarray(apexes, float)
     feet = np.asarray(footholds, float)
     apexes = apexes[np.all(np.isfinite(apexes), axis=1)]
@@ -84,28 +86,28 @@ def stride_paths(apexes: np.ndarray, footholds: np.ndarray, rho0: float = 1.0,
             break
         a = apexes[k]
         b = apexes[k + 1] if k + 1 < len(apexes) else None
-        if model == "slip":
+        if leg_touchdown:
             t_max = np.sqrt(max(2.0 * (a[1] - h) / g, 0.0))
             t = np.linspace(0.0, t_max, 4000)
-            ys, zs = _ballistic(a[0], a[1], a[2], 0.0, t, g, wind)
+            ys, zs = ballistic(a[0], a[1], a[2], 0.0, t, g, wind)
             i = min(_first_within(ys, zs, (yf, h), rho0), len(t) - 1)
             t_d = t[i]
         else:
             t_d = np.sqrt(max(2.0 * (a[1] - h - rho0) / g, 0.0))
-        descent = _ballistic(a[0], a[1], a[2], 0.0, np.linspace(0.0, t_d, n), g, wind)
+        descent = ballistic(a[0], a[1], a[2], 0.0, np.linspace(0.0, t_d, n), g, wind)
         td = (descent[0][-1], descent[1][-1])
         lo, ascent = td, None
         if b is not None:
-            if model == "slip":
+            if leg_touchdown:
                 tau_max = np.sqrt(max(2.0 * (b[1] - h) / g, 0.0))
                 tau = np.linspace(0.0, tau_max, 4000)
-                ys, zs = _ballistic(b[0], b[1], -b[2], 0.0, tau, g, wind)
+                ys, zs = ballistic(b[0], b[1], -b[2], 0.0, tau, g, wind)
                 t_up = tau[min(_first_within(ys, zs, (yf, h), rho0), len(tau) - 1)]
             else:
                 t_up = np.sqrt(max(2.0 * (b[1] - h - rho0) / g, 0.0))
             y_lo = b[0] - b[2] * t_up + 0.5 * wind * t_up**2
             z_lo = b[1] - 0.5 * g * t_up**2
-            ascent = _ballistic(y_lo, z_lo, b[2] - wind * t_up, g * t_up,
+            ascent = ballistic(y_lo, z_lo, b[2] - wind * t_up, g * t_up,
                                 np.linspace(0.0, t_up, n), g, wind)
             lo = (y_lo, z_lo)
             lift = (y_lo, z_lo, b[2] - wind * t_up, g * t_up, t_up)
@@ -136,7 +138,7 @@ def draw_run(ax, apexes: np.ndarray, footholds: np.ndarray, rho0: float = 1.0,
         if legs:
             for q in (td, lo) if p["ascent"] is not None else (td,):
                 ax.plot([q[0], yf], [q[1], h], color="0.2", lw=0.7, zorder=4)
-        elif model == "bhop":
+        elif model_for(model).instant_stance:
             ax.plot([yf, yf], [h, h + rho0], color="0.3", lw=0.6, zorder=4)
     if feet.size:
         ax.plot(feet[:, 0], feet[:, 1], "v", color=color, ms=5, zorder=6)
@@ -263,13 +265,14 @@ def runs_figure(terrain: Terrain, runs: list[dict], goal=None, title="Example ru
     fig, ax = plt.subplots(figsize=(11, 3.8))
     draw_terrain(ax, terrain, perceived)
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    legs = not model_for(model).instant_stance
     for i, run in enumerate(runs):
         if plan is not None:
             sections = policy_cross_sections(plan, run["policies"][: int(run["steps"])],
                                              run["apexes"])
             draw_cross_sections(ax, sections, label=i == 0)
         draw_run(ax, run["apexes"], run["footholds"], rho0, g, colors[i % len(colors)],
-                 _run_label(i, run), model=model, wind=wind, legs=model == "slip")
+                 _run_label(i, run), model=model, wind=wind, legs=legs)
     if goal is not None:
         ax.plot(goal[0], goal[1], "ko", ms=7, label="global goal", zorder=7)
     _headroom(ax, terrain, runs, 1.0 if plan is None else 1.3)
@@ -295,6 +298,7 @@ def long_run_figure(plan: Plan, run: dict, model: str = "slip", title: str | Non
     cannot realise the BHop goals exactly; the reactive controller absorbs the difference).
     """
     terrain = plan.terrain if true_terrain is None else true_terrain
+    name = model_for(model).name.upper()
     steps = int(run["steps"])
     apexes = np.asarray(run["apexes"])[: steps + 1]
     apexes = apexes[np.all(np.isfinite(apexes), axis=1)]
@@ -304,7 +308,7 @@ def long_run_figure(plan: Plan, run: dict, model: str = "slip", title: str | Non
     draw_terrain(ax, terrain)
     draw_run(ax, run["apexes"], run["footholds"], float(plan.hopper.rho0),
              float(plan.hopper.g), "tab:blue",
-             f"{model.upper()} COM path: {RESULT_NAMES[int(run['code'])]} in {steps} strides",
+             f"{name} COM path: {RESULT_NAMES[int(run['code'])]} in {steps} strides",
              model=model, legs=True)
     ax.plot(goals[:, 0], goals[:, 1], "o", mfc="none", mec="tab:green", ms=6, zorder=7,
             label="goal of the policy chosen at each apex")
@@ -320,7 +324,7 @@ def long_run_figure(plan: Plan, run: dict, model: str = "slip", title: str | Non
     ax.plot([], [], color="0.2", lw=0.7, label="leg at touchdown / liftoff")
     back = int(np.sum(np.diff(apexes[:, 0]) < 0))
     ax.legend(loc="upper left", fontsize=8, ncol=2)
-    ax.set_title(title or f"{model.upper()} across '{terrain.name}' with the reactive planner "
+    ax.set_title(title or f"{name} across '{terrain.name}' with the reactive planner "
                  f"({back} backward stride{'' if back == 1 else 's'})")
     ax.set_ylim(float(np.min(terrain.heights)) - 0.6,
                 max(float(np.max(apexes[:, 1])), float(np.max(goals[:, 1], initial=0))) + 0.8)
@@ -355,109 +359,6 @@ def doa_figure(terrain: Terrain, initial: np.ndarray, code: np.ndarray, steps: n
     ax.set_title(f"{title}: {rate:.1f}% of {ok.size} initial apexes reach the goal")
     fig.tight_layout()
     return fig
-
-
-# --- offline plan replayed open loop (Figs. 14-15) ----------------------------------------
-
-
-def nominal_controls(plan: Plan, run: dict) -> np.ndarray:
-    """BHop controls `(dy, th, k)` the reactive controller applied at each apex of a run.
-
-    Recomputed from the recorded (true) apexes, so exact for an undisturbed run.
-    """
-    import jax
-    import jax.numpy as jnp
-
-    from ._models import decide
-
-    steps = int(run["steps"])
-    if steps == 0:
-        return np.zeros((0, 3))
-    apexes = jnp.asarray(np.asarray(run["apexes"])[:steps], float)
-    decide_all = jax.jit(jax.vmap(decide, (0, None, None)))
-    found, u, a = decide_all(apexes, plan.tables(), plan.hopper)
-    return np.asarray(u)
-
-
-def _goal_controls(measured, goal, h, tmpl, hopper):
-    """BHop deadbeat toward `goal`, clipped to the template's limits (as `decide`)."""
-    import jax.numpy as jnp
-
-    from ._bhop import deadbeat_bhop
-
-    u = deadbeat_bhop(measured, goal, h, hopper)
-    lo = jnp.stack([tmpl.dy_lo, tmpl.th_lo, tmpl.k_lo])
-    hi = jnp.stack([tmpl.dy_hi, tmpl.th_hi, tmpl.k_hi])
-    return jnp.clip(jnp.where(jnp.isfinite(u), u, hi), lo, hi)
-
-
-def open_loop_replay(plan: Plan, run: dict, *, disturbance=None, key=None,
-                     true_terrain: Terrain | None = None, mode: str = "controls",
-                     tolerance=(0.05, 0.05, 0.05)) -> dict:
-    """Replay a nominal run's plan open loop, without reactive re-selection (Figs. 14-15).
-
-    `mode = "controls"`: the nominal run's control sequence (`nominal_controls`) is applied
-    stride by stride with `bhop_stride`, whatever happens (the paper's "offline plan").
-    `mode = "goals"`: the nominal run's sequence of policy goals is kept, and the BHop
-    deadbeat toward the k-th goal is computed from the k-th *measured* apex (sensor noise
-    drawn as in `run_one` for run 0 of a batch with the same `key`), clipped to that policy's
-    limits. The stride uses `true_terrain` (default: the plan's map) and the wind.
-
-    Returns:
-        a run dict (`code, steps, apexes, footholds, policies`, as from `run_batch` for one
-        run): `success` if the last apex is within `tolerance` of the plan's goal, otherwise
-        the failure, or `max_steps` when the sequence ran out away from the goal.
-    """
-    import jax
-    import jax.numpy as jnp
-
-    from ._flight import MAX_STEPS, OK, SUCCESS
-    from ._models import bhop_stride
-    from ._params import Disturbance
-
-    if mode not in ("controls", "goals"):
-        raise ValueError(f"mode must be 'controls' or 'goals', got {mode!r}")
-    disturbance = Disturbance() if disturbance is None else disturbance
-    key = jax.random.fold_in(jax.random.key(0) if key is None else key, 0)
-    terrain = plan.terrain if true_terrain is None else true_terrain
-    hop, tmpls = plan.hopper, plan.templates
-    steps = int(run["steps"])
-    policies = np.asarray(run["policies"])[:steps]
-    controls = nominal_controls(plan, run) if mode == "controls" else None
-    n = len(run["footholds"])
-    apexes = np.full((n + 1, 3), np.nan)
-    feet = np.full((n, 2), np.nan)
-    used = np.full(n, -1, np.int32)
-    apex = np.asarray(run["apexes"][0], float)
-    apexes[0] = apex
-    centre = np.asarray(plan.table().centre)
-    stride, goal_controls = jax.jit(bhop_stride), jax.jit(_goal_controls)
-    code, taken = OK, 0
-    for k in range(steps):
-        if mode == "controls":
-            u = jnp.asarray(controls[k])
-        else:
-            a = int(policies[k])
-            s = int(plan.situated[a])
-            tmpl = tmpls.row(s % tmpls.n)
-            h = centre[s // tmpls.n, 1]
-            noise = jax.random.uniform(jax.random.fold_in(key, k), (3,), minval=-1.0,
-                                       maxval=1.0)
-            measured = jnp.asarray(apex) + noise * disturbance.sensor
-            u = goal_controls(measured, jnp.asarray(plan.goals[a]), h, tmpl, hop)
-        nxt, c, foot = stride(jnp.asarray(apex), u, terrain, hop, disturbance.wind)
-        feet[k], used[k] = np.asarray(foot), policies[k]
-        taken = k + 1
-        if int(c) != OK:
-            code = int(c)
-            break
-        apex = np.asarray(nxt)
-        apexes[k + 1] = apex
-    if code == OK:
-        at_goal = np.all(np.abs(apex - plan.goal) <= np.asarray(tolerance))
-        code = SUCCESS if at_goal else MAX_STEPS
-    return {"code": np.int32(code), "steps": np.int32(taken), "apexes": apexes,
-            "footholds": feet, "policies": used}
 
 
 def disturbance_figure(terrain: Terrain, nominal: dict, open_loop: dict, reactive: dict,
@@ -501,190 +402,3 @@ def disturbance_figure(terrain: Terrain, nominal: dict, open_loop: dict, reactiv
     fig.suptitle("x: start, dots: apexes, triangles: footholds", fontsize=9, y=0.995)
     fig.tight_layout()
     return fig
-
-
-def template_regions_figure(templates, hopper, n: int = 121):
-    """Domain and feasible-goal regions of every template in `(ydot, zr)` (Fig. 9).
-
-    Left: `D(Φ)` (eqs 38-41); right: `Gf(Φ)` by the exact closed form. One colour per
-    template; the y extent (not shown) is a band of width `2l` (domain) or
-    `dy_hi - dy_lo - 2l` (goal) around the touchdown / liftoff line.
-    """
-    import jax
-    import jax.numpy as jnp
-
-    from ._regions import domain_height_bounds, goal_height_bounds
-
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2), sharey=True)
-    cmap = plt.get_cmap("tab20")
-    v = jnp.linspace(-5.0, 5.0, n)
-    for t in range(templates.n):
-        tmpl = templates.row(t)
-        for ax, fn in zip(axes, (domain_height_bounds, goal_height_bounds)):
-            lo, hi = (np.asarray(x) for x in jax.vmap(fn, (0, None, None))(v, tmpl, hopper))
-            ok = hi > lo
-            if ok.any():
-                ax.fill_between(np.asarray(v), np.where(ok, lo, np.nan), np.where(ok, hi, np.nan),
-                                color=cmap(t % 20), alpha=0.55, lw=0)
-    for ax, title in zip(axes, ("domains D(Φ)", "feasible goals Gf(Φ)")):
-        ax.set_xlabel("apex velocity ydot (m/s)")
-        ax.set_title(f"{templates.n} templates: {title}")
-        ax.grid(alpha=0.3)
-    axes[0].set_ylabel("apex height above virtual ground zr (m)")
-    fig.tight_layout()
-    return fig
-
-
-def goal_coverage_figure(plan: Plan, ydot: float = 0.5, tol: float = 0.25):
-    """Instantiated goals over the terrain (Fig. 11): goals with `|ydot - ydot0| < tol`."""
-    fig, ax = plt.subplots(figsize=(11, 3.8))
-    draw_terrain(ax, plan.terrain)
-    g = plan.goals
-    sel = np.abs(g[:, 2] - ydot) < tol
-    sc = ax.scatter(g[sel, 0], g[sel, 1], c=plan.robustness[sel], s=3, cmap="viridis", lw=0,
-                    vmin=0, vmax=1, zorder=3)
-    fig.colorbar(sc, ax=ax, label="safety-sampling score", fraction=0.03, pad=0.01)
-    ax.plot(plan.goal[0], plan.goal[1], "ko", ms=7, label="global goal", zorder=4)
-    ax.legend(loc="upper left", fontsize=8)
-    ax.set_title(f"Goals of instantiated policies with |ydot - {ydot}| < {tol} m/s "
-                 f"({int(sel.sum())} of {len(g)})")
-    fig.tight_layout()
-    return fig
-
-
-def prepares_figure(plan: Plan, max_points: int = 400_000):
-    """The prepares relation as a sparse pattern (Fig. 12), policies ordered along `y`.
-
-    Rows: instantiated policies; columns: situated policies whose domain holds the row's
-    goal (`P`; the full graph is `P` times the situated → instantiated membership).
-    """
-    p = plan.prepares.tocoo()
-    table = plan.table()
-    y_sit = np.repeat(np.asarray(table.centre)[:, 0], plan.templates.n)
-    order_rows = np.argsort(y_sit[plan.situated], kind="stable")
-    rank_row = np.empty_like(order_rows)
-    rank_row[order_rows] = np.arange(order_rows.size)
-    order_cols = np.argsort(y_sit, kind="stable")
-    rank_col = np.empty_like(order_cols)
-    rank_col[order_cols] = np.arange(order_cols.size)
-    rows, cols = rank_row[p.row], rank_col[p.col]
-    if rows.size > max_points:
-        keep = np.random.default_rng(0).choice(rows.size, max_points, replace=False)
-        rows, cols = rows[keep], cols[keep]
-    fig, ax = plt.subplots(figsize=(6.5, 6))
-    ax.plot(cols, rows, ",", color="tab:blue", alpha=0.6)
-    ax.set_xlim(0, plan.n_situated)
-    ax.set_ylim(plan.situated.size, 0)
-    ax.set_xlabel("prepared situated policy (ordered along y)")
-    ax.set_ylabel("instantiated policy (ordered along y)")
-    ax.set_title(f"Prepares relation: {p.nnz} entries of P, {plan.stats['n_edges']} edges")
-    fig.tight_layout()
-    return fig
-
-
-ANIMATION_FORMATS = (".gif", ".mp4")
-
-
-def animation_writer(path: str, fps: int):
-    """A matplotlib writer for `path`: Pillow for `.gif`, ffmpeg for `.mp4`.
-
-    Raises:
-        InputError: another extension, or `.mp4` without an ffmpeg encoder.
-    """
-    import os
-
-    from matplotlib.animation import FFMpegWriter, PillowWriter, writers
-
-    from ._errors import InputError
-
-    ext = os.path.splitext(path)[1].lower()
-    if ext == ".gif":
-        return PillowWriter(fps=fps)
-    if ext == ".mp4":
-        if not writers.is_available("ffmpeg"):
-            raise InputError(f"cannot write {path}: MP4 needs ffmpeg, which is not installed "
-                             "(write a .gif instead)")
-        return FFMpegWriter(fps=fps)
-    raise InputError(f"{path}: the file name must end with .gif or .mp4")
-
-
-def animation_frames(run: dict, rho0: float = 1.0, g: float = 9.81, fps: int = 25,
-                     model: str = "bhop", wind: float = 0.0) -> list[tuple]:
-    """Frames `(com_y, com_z, foot_y, foot_z, in_contact)` of a run at `fps`.
-
-    Flight follows `stride_paths` in time steps of `1 / fps`; the BHop stance
-    (instantaneous) and the SLIP stance (not recorded) take four frames each, the COM moving
-    along the chord from touchdown to liftoff with the foot planted. The leg hangs below the
-    COM while descending and is half retracted while rising.
-    """
-    apexes = np.asarray(run["apexes"])
-    apexes = apexes[np.all(np.isfinite(apexes), axis=1)]
-    frames = []
-    dt = 1.0 / fps
-    for p in stride_paths(apexes, run["footholds"], rho0, g, model, wind, n=2):
-        (yf, h), td, lo = p["foot"], p["td"], p["lo"]
-        y0, z0, vy0 = p["apex"]
-        for t in np.arange(0.0, p["t_down"], dt):
-            cy, cz = _ballistic(y0, z0, vy0, 0.0, t, g, wind)
-            frames.append((cy, cz, cy + yf - td[0], cz + h - td[1], False))
-        if p["liftoff"] is None:
-            frames.append((td[0], td[1], yf, h, True))
-            continue
-        for s in np.linspace(0.0, 1.0, 4):
-            frames.append((td[0] + s * (lo[0] - td[0]), td[1] + s * (lo[1] - td[1]), yf, h,
-                           True))
-        y1, z1, vy1, vz1, t_up = p["liftoff"]
-        for t in np.arange(dt, t_up, dt):
-            cy, cz = _ballistic(y1, z1, vy1, vz1, t, g, wind)
-            frames.append((cy, cz, cy, cz - 0.6 * rho0, False))
-    if not frames:
-        frames.append((apexes[0, 0], apexes[0, 1], apexes[0, 0], apexes[0, 1] - rho0, False))
-    return frames
-
-
-def animate_run(terrain: Terrain, run: dict, path: str, rho0: float = 1.0, g: float = 9.81,
-                fps: int = 25, goal=None, model: str = "bhop", wind: float = 0.0,
-                dpi: int = 80) -> str:
-    """Write an animation of a run: the body, its leg, the terrain and the footholds.
-
-    The motion is rebuilt from the apexes and footholds (`animation_frames`). `path` ending
-    in `.gif` is written with Pillow, `.mp4` with ffmpeg (`animation_writer`). Returns the
-    path written.
-    """
-    from matplotlib.animation import FuncAnimation
-
-    writer = animation_writer(path, fps)
-    apexes = np.asarray(run["apexes"])
-    apexes = apexes[np.all(np.isfinite(apexes), axis=1)]
-    frames = animation_frames(run, rho0, g, fps, model, wind)
-    fig, ax = plt.subplots(figsize=(9, 3.4))
-    draw_terrain(ax, terrain)
-    if goal is not None:
-        ax.plot(goal[0], goal[1], "ko", ms=6, label="global goal")
-    ax.set_ylim(float(np.min(terrain.heights)) - 0.6, float(np.max(apexes[:, 1])) + 0.3)
-    (leg,) = ax.plot([], [], color="0.2", lw=2, zorder=6)
-    (body,) = ax.plot([], [], "o", color="tab:orange", ms=12, zorder=7)
-    (marks,) = ax.plot([], [], "v", color="tab:blue", ms=6, zorder=5, label="footholds")
-    ax.set_title(f"{model.upper()}: {RESULT_NAMES[int(run['code'])]} in "
-                 f"{int(run['steps'])} strides")
-    if goal is not None:
-        ax.legend(loc="upper left", fontsize=8)
-    fig.tight_layout()
-    contacts: list[tuple[float, float]] = []
-
-    def draw(i):
-        cy, cz, fy, fz, contact = frames[i]
-        if contact and (not contacts or contacts[-1] != (fy, fz)):
-            contacts.append((fy, fz))
-        leg.set_data([cy, fy], [cz, fz])
-        body.set_data([cy], [cz])
-        if contacts:
-            marks.set_data(*zip(*contacts))
-        return leg, body, marks
-
-    anim = FuncAnimation(fig, draw, frames=len(frames), blit=True)
-    try:
-        anim.save(path, writer=writer, dpi=dpi)
-    finally:
-        plt.close(fig)
-    return path
