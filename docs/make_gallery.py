@@ -10,7 +10,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 import jaxhop  # noqa: E402
-from jaxhop import _plot, _plot_plan  # noqa: E402
+from jaxhop import _plot  # noqa: E402
 
 OUT = pathlib.Path(__file__).parent / "gallery"
 
@@ -24,7 +24,7 @@ def save(fig, name):
 def main():
     terrain = jaxhop.builtin_terrain("reference")
     plan = jaxhop.get_plan(terrain, progress=False)
-    save(_plot_plan.template_regions_figure(plan.templates, plan.hopper), "template_regions.png")
+    save(_plot.template_regions_figure(plan.templates, plan.hopper), "template_regions.png")
     runs = jaxhop.run_batch(plan, np.array([[0.6, 1.6, 0.5], [3.6, 1.5, 0.5]]))
     examples = [{k: v[i] for k, v in runs.items()} for i in range(2)]
     save(_plot.runs_figure(terrain, examples, plan.goal, "Two reactive BHop runs"),

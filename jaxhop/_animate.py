@@ -6,8 +6,8 @@ from __future__ import annotations
 import matplotlib.pyplot as plt
 import numpy as np
 
+from ._draw import ballistic, draw_terrain, stride_paths
 from ._models import model_for
-from ._plot import ballistic, draw_terrain, stride_paths
 from ._result import RESULT_NAMES
 from ._terrain import Terrain
 

@@ -43,10 +43,12 @@ def demo(out: str = "jaxhop-demo", cache: bool = True, log=print) -> dict:
         disturbance_figure,
         doa_figure,
         global_domain_figure,
+        goal_coverage_figure,
         long_run_figure,
+        prepares_figure,
         runs_figure,
+        template_regions_figure,
     )
-    from ._plot_plan import goal_coverage_figure, prepares_figure, template_regions_figure
     from ._replay import open_loop_replay
 
     os.makedirs(out, exist_ok=True)

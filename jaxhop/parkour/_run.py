@@ -29,7 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._batching import bucket, pad_terrain, pad_to
-from .._models import decide, first_match
+from .._models import decide, in_global_domain
 from .._params import NOISE_KINDS, Hopper, check_noise, disturbance_for
 from .._plan import PlanTables
 from .._policies import PairGrid, SituatedTable
@@ -179,7 +179,6 @@ def _step_one(apex, code, key, k, tables, true_terrain, forb, goal, tol, dist, h
 _step_batch = jax.jit(jax.vmap(_step_one, (0, 0, 0, None, None, None, None, None, None, None,
                                            None, None)), static_argnames=("model",))
 _decide_jit = jax.jit(decide, static_argnames=("model",))
-_in_domain = jax.jit(jax.vmap(lambda z, t, h: first_match(z, t, h)[0], (0, None, None)))
 
 
 @dataclasses.dataclass
@@ -221,7 +220,7 @@ def initial_states(cps: CoursePlans, padded: Padded, n: int, seed: int,
         box = np.column_stack([cps.course.start + rng.uniform(0, 1, m) * leg,
                                leg * (1.0 + rng.uniform(0.3, 0.8, m)),
                                rng.uniform(0, 0.3, m) * v])
-        inside = np.asarray(_in_domain(jnp.asarray(box), padded.tables[0], hopper))
+        inside = in_global_domain(box, padded.tables[0], hopper)
         tried += m
         kept += int(inside.sum())
         out.extend(box[inside].tolist())
