@@ -137,7 +137,7 @@ def policy_cross_sections(plan: Plan, policies, apexes, n: int = 40):
     the domain `D` at the apex's velocity `apexes[k][2]` (eqs 38-41: heights from
     the energy range, `y` such that the nominal touchdown lies on the segment) and the
     feasible goal `Gf` at the policy goal's velocity (corrected eqs 45-50). The planner's
-    collision-free trims (SPEC section 5) are not drawn.
+    collision-free trims (`docs/decisions.md`, "Regions") are not drawn.
 
     Returns:
         list of `(domain_polygon, goal_polygon)`, each an `(m, 2)` array or None if empty.

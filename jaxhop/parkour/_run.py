@@ -3,16 +3,16 @@
 `course_plans` builds the plan of the course's first environment in full and, for every
 snapshot, updates it incrementally (`build_course_plan(..., previous=...)`), timing each
 update (optionally against a full rebuild). `run_reactive` runs a batch of initial apexes
-through the paper's reactive controller (first match, deadbeat, clip; SPEC section 10) on
-the true terrain of the environment in force: environment `e` is in force from stride
+through the paper's reactive controller (Fig. 8: first match, deadbeat, clip; the run loop's
+`step`) on the true terrain of the environment in force: environment `e` is in force from stride
 `from_jump` on, so stride `k` is decided with the plan of the snapshot of replan `k`.
 
 A stride fails with `restricted` (`margin`) when its touchdown lies strictly inside a
-restricted area (a margin band). Disturbances (Froude-scaled from SPEC section 11 by the
-hopper's size): `wind` (horizontal acceleration `-0.2 g / 9.81` in flight), `sensor`
-(uniform apex measurement noise `+-0.05` leg lengths on `y`, `z` and `+-0.05 sqrt(g rho0 /
-9.81)` on `ydot`), `landing` (the true apex is shifted by uniform `+-0.05` leg lengths in
-`y` before each descent, i.e. each touchdown lands that much off).
+restricted area (a margin band). Disturbances (section VI-C's, Froude-scaled by the hopper's
+size: `jaxhop._params.disturbance_for`): `wind` (horizontal acceleration `-0.2 g / 9.81` in
+flight), `sensor` (uniform apex measurement noise `+-0.05` leg lengths on `y`, `z` and
+`+-0.05 sqrt(g rho0 / 9.81)` on `ydot`), `landing` (the true apex is shifted by uniform
+`+-0.05` leg lengths in `y` before each descent, i.e. each touchdown lands that much off).
 
 All plans of a course are padded to common shapes, so one compilation of the stride
 serves every snapshot (and every course with the same padded sizes).
@@ -199,7 +199,7 @@ def pad_plans(cps: CoursePlans) -> Padded:
 
 
 def goal_tolerance(hopper: Hopper) -> np.ndarray:
-    """SPEC's 0.05 m, 0.05 m, 0.05 m/s, Froude-scaled."""
+    """The goal tolerance (0.05 m, 0.05 m, 0.05 m/s for the paper's hopper), Froude-scaled."""
     f = template_scales(hopper)
     return np.array([0.05 * f["length"], 0.05 * f["length"], 0.05 * f["velocity"]])
 
@@ -286,7 +286,7 @@ def decision_ms(cps: CoursePlans, padded: Padded, apexes, hopper: Hopper,
 
 
 def executed_strides(result: dict, i: int, hopper: Hopper, wind: float = 0.0) -> list:
-    """Run `i` as a list of `{xs, zs, v, theta, t, x1, z1}` (SPEC section 15 keys).
+    """Run `i` as a list of `{xs, zs, v, theta, t, x1, z1}` (the MPPC result's `executed`).
 
     Stride `k`: `xs, zs` its foothold; `v, theta` the COM's liftoff speed and angle from
     the horizontal; `t` the flight from liftoff to the next touchdown (to the final apex
