@@ -17,6 +17,7 @@ from ._deploy import check_order as check_order
 from ._deploy import deploy as deploy
 from ._errors import InputError as InputError
 from ._execute import run_batch as run_batch
+from ._execute import sweep as sweep
 from ._execute import sweep_grid as sweep_grid
 from ._flight import touchdown as touchdown
 from ._graph import prepares_matrix as prepares_matrix
@@ -39,7 +40,6 @@ from ._regions import goal_height_bounds as goal_height_bounds
 from ._regions import template_domain_contains as template_domain_contains
 from ._result import RESULT_NAMES as RESULT_NAMES
 from ._result import Result as Result
-from ._sweep import sweep as sweep
 from ._templates import Templates as Templates
 from ._templates import make_templates as make_templates
 from ._templates import paper_templates as paper_templates

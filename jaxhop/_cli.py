@@ -66,7 +66,7 @@ MAX_POSITION = 1.0e4  # |y|, |z| of an apex (m)
 
 def _check_sweep_args(args):
     """Every sweep number, the terrain and the grid size, before any plan is built."""
-    from ._sweep import MAX_GRID
+    from ._execute import MAX_GRID
 
     dy, dz = _positive(args.dy, "--dy"), _positive(args.dz, "--dz")
     (ydot0,) = _bounded(_floats(args.ydot0, 1, "--ydot0"), "--ydot0", MAX_SPEED)
@@ -378,7 +378,7 @@ def cmd_sweep(args) -> int:
                              f"({err.strerror})") from None
     (ydot0,) = _floats(args.ydot0, 1, "--ydot0")
     terrain, plan, seed, max_steps, tol, disturbance, key = _prepare(args)
-    from ._sweep import sweep
+    from ._execute import sweep
 
     out, initial, result = sweep(plan, key=key, true_terrain=terrain, disturbance=disturbance,
                                  ydot0=ydot0, dy=dy, dz=dz, max_steps=max_steps,
@@ -489,7 +489,7 @@ def cmd_step(args) -> int:
     if args.model == "slip":
         from ._slip import slip_stride as stride_fn
     else:
-        from ._models import bhop_stride as stride_fn
+        from ._execute import bhop_stride as stride_fn
     nxt, code, foot = stride_fn(jnp.asarray(apex), jnp.asarray(u), terrain, hopper, wind)
     result = "ok" if int(code) == 0 else RESULT_NAMES[int(code)]
     out = {"model": args.model, "apex": apex, "controls": u, "terrain": terrain.name,

@@ -9,12 +9,11 @@ import time
 import jax
 import numpy as np
 
-from ._execute import run_batch, sweep_grid
+from ._execute import run_batch, sweep, sweep_grid
 from ._flight import RESULT_NAMES
 from ._models import in_global_domain
 from ._params import disturbance_for
 from ._plan import build_plan, get_plan
-from ._sweep import sweep
 from ._terrain import builtin_terrain
 
 EXAMPLE_STARTS = ((0.6, 1.6, 0.5), (3.6, 1.5, 0.5))

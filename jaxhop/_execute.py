@@ -1,14 +1,16 @@
-"""A batch of runs over devices and processes: `run_batch`.
+"""Batches of runs over devices and processes (`run_batch`), and domain-of-attraction sweeps.
 
 `run_batch` cuts the batch into chunks and runs them with the vmapped run loop
 (`jaxhop._runloop`) or, for SLIP, the lane pool (`jaxhop._pool`); chunks go to the visible
 JAX devices (one chunk per device, dispatched asynchronously). Under `jax.distributed`
 each process runs its share of the chunks (`process_chunks`) and the results are gathered.
-A sweep's initial states are the grid states (`sweep_grid`) in the global domain
-(`in_global_domain`).
+A sweep (`docs/decisions.md`, "Sweeps") runs the grid states (`sweep_grid`) in the global
+domain (`in_global_domain`) and summarizes them (`summarize`).
 """
 
 from __future__ import annotations
+
+import time
 
 import jax
 import jax.numpy as jnp
@@ -17,12 +19,15 @@ import numpy as np
 from ._batching import chunk_index
 from ._checkpoint import ChunkStore as _ChunkStore
 from ._checkpoint import fingerprint
+from ._errors import InputError
+from ._models import bhop_stride as bhop_stride
 from ._models import in_global_domain as in_global_domain
 from ._models import model_for
 from ._params import Disturbance
 from ._plan import Plan
 from ._pool import pool_runs as _pool_runs
 from ._progress import Progress
+from ._result import Result, failure_counts
 from ._runloop import RUN_FIELDS, RunConfig, _batch, run_init, run_result
 from ._runloop import batch_jit as _batch_jit
 from ._terrain import Terrain
@@ -202,3 +207,49 @@ def _run_pool(apex0, key, consts, config, n, chunk, mine, store, progress):
     return _combine(parts, spans, n, lambda: [np.zeros((1,) + s.shape, s.dtype)
                                               for s in shapes])
 
+
+def summarize(result: dict, seconds: float) -> dict:
+    """The summary of a sweep (the keys of `jaxhop sweep --json`)."""
+    code, steps = result["code"], result["steps"]
+    n = int(code.size)
+    ok = code == Result.SUCCESS
+    return {
+        "n_initial_conditions": n,
+        "success_rate": float(ok.mean()) if n else 0.0,
+        "mean_steps": float(steps[ok].mean()) if ok.any() else 0.0,
+        "max_steps": int(steps[ok].max()) if ok.any() else 0,
+        "failures": failure_counts(code),
+        "seconds": round(seconds, 3),
+    }
+
+
+MAX_GRID = 2_000_000
+
+
+def sweep(plan: Plan, *, initial=None, key=None, true_terrain: Terrain | None = None,
+          disturbance: Disturbance | None = None, ydot0: float = 0.5, dy: float = 0.05,
+          dz: float = 0.05, max_steps: int = 60, tolerance=None, chunk: int | None = None,
+          checkpoint: str | None = None, model: str = "bhop", progress: bool = False):
+    """Domain-of-attraction sweep: run every grid state inside the global domain.
+
+    The grid (`sweep_grid`) covers `true_terrain` (default: the plan's map); `initial`
+    replaces it. The other arguments are `run_batch`'s.
+
+    Returns:
+        `(summary, initial_states, result)`.
+
+    Raises:
+        InputError: the grid would exceed `MAX_GRID` states, or no state to run.
+    """
+    t0 = time.perf_counter()
+    if initial is None:
+        grid = sweep_grid(plan.terrain if true_terrain is None else true_terrain, ydot0, dy, dz)
+        if grid.shape[0] > MAX_GRID:
+            raise InputError(f"dy/dz: the grid would exceed {MAX_GRID} initial states")
+        initial = grid[in_global_domain(grid, plan.tables(), plan.hopper)]
+        if initial.shape[0] == 0:
+            raise InputError("no grid state lies in the global domain (is the goal reachable?)")
+    result = run_batch(plan, initial, key=key, true_terrain=true_terrain,
+                       disturbance=disturbance, max_steps=max_steps, tolerance=tolerance,
+                       chunk=chunk, progress=progress, checkpoint=checkpoint, model=model)
+    return summarize(result, time.perf_counter() - t0), initial, result

@@ -6,14 +6,13 @@ import numpy as np
 import pytest
 
 from jaxhop._deploy import check_order
-from jaxhop._execute import run_batch
+from jaxhop._execute import run_batch, sweep
 from jaxhop._flight import OK, SUCCESS, touchdown
 from jaxhop._models import first_match
 from jaxhop._params import Disturbance, disturbance_for
 from jaxhop._plan import build_plan, get_plan
 from jaxhop._regions import template_domain_contains
 from jaxhop._runloop import run_one
-from jaxhop._sweep import sweep
 from jaxhop._terrain import builtin_terrain, segments
 
 

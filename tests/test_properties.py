@@ -98,8 +98,8 @@ def test_deployment_invariant_and_nominal_success_on_random_terrains(seed):
     import jax
 
     from jaxhop._deploy import check_order
+    from jaxhop._execute import sweep
     from jaxhop._plan import build_plan
-    from jaxhop._sweep import sweep
     from jaxhop._terrain import random_terrain
 
     terrain = random_terrain(jax.random.key(seed), 5.0)
