@@ -51,7 +51,8 @@ import numpy as np
 import jaxhop
 from jaxhop import Hopper, build_plan, builtin_terrain, paper_templates
 from jaxhop import reference as R
-from jaxhop._execute import decide, run_batch, sweep_grid
+from jaxhop._execute import run_batch, sweep_grid
+from jaxhop._models import decide
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 

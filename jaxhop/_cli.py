@@ -120,8 +120,9 @@ def _write_json(path, data):
 
 
 def _plan(args, terrain, goal):
+    from ._cache import get_plan
     from ._deploy import PICKBEST
-    from ._plan import build_plan, get_plan, templates_for
+    from ._plan import build_plan, templates_for
 
     templates = templates_for(getattr(args, "model", "bhop"))
     if args.pickbest != "robust" or args.no_cache:
@@ -238,7 +239,7 @@ def cmd_run(args) -> int:
                           model=args.model, wind=float(disturbance.wind))
         _save(fig, args.plot)
     if args.animate:
-        from ._plot import animate_run
+        from ._animate import animate_run
 
         try:
             animate_run(terrain, {k: v[0] for k, v in r.items()}, args.animate,
@@ -265,17 +266,15 @@ def cmd_step(args) -> int:
     import jax.numpy as jnp
     import numpy as np
 
-    from ._flight import RESULT_NAMES
+    from ._models import model_for
     from ._params import Hopper
+    from ._result import RESULT_NAMES
 
     apex, u, wind = args.apex, args.controls, args.wind
     terrain = A.check_step_args(args)
     hopper = Hopper()
-    if args.model == "slip":
-        from ._slip import slip_stride as stride_fn
-    else:
-        from ._execute import bhop_stride as stride_fn
-    nxt, code, foot = stride_fn(jnp.asarray(apex), jnp.asarray(u), terrain, hopper, wind)
+    model = model_for(args.model)
+    nxt, code, foot = model.stride(jnp.asarray(apex), jnp.asarray(u), terrain, hopper, wind)
     result = "ok" if int(code) == 0 else RESULT_NAMES[int(code)]
     out = {"model": args.model, "apex": apex, "controls": u, "terrain": terrain.name,
            "apex_next": np.asarray(nxt).tolist(), "result": result,

@@ -122,7 +122,7 @@ def check_step_args(args):
 
 def check_animate(path: str):
     """`--animate`: a known format with its encoder at hand, in a folder that exists."""
-    from ._plot import animation_writer
+    from ._animate import animation_writer
 
     try:  # a bad name or a missing encoder fails before any work
         animation_writer(path, 25)

@@ -9,10 +9,12 @@ import time
 import jax
 import numpy as np
 
-from ._execute import in_global_domain, run_batch, sweep, sweep_grid
+from ._cache import get_plan
+from ._execute import run_batch, sweep, sweep_grid
 from ._flight import RESULT_NAMES
+from ._models import in_global_domain
 from ._params import disturbance_for
-from ._plan import build_plan, get_plan
+from ._plan import build_plan
 from ._terrain import builtin_terrain
 
 EXAMPLE_STARTS = ((0.6, 1.6, 0.5), (3.6, 1.5, 0.5))
@@ -36,18 +38,18 @@ def demo(out: str = "jaxhop-demo", cache: bool = True, log=print) -> dict:
     """
     import matplotlib.pyplot as plt
 
+    from ._animate import animate_run
     from ._plot import (
-        animate_run,
         disturbance_figure,
         doa_figure,
         global_domain_figure,
         goal_coverage_figure,
         long_run_figure,
-        open_loop_replay,
         prepares_figure,
         runs_figure,
         template_regions_figure,
     )
+    from ._replay import open_loop_replay
 
     os.makedirs(out, exist_ok=True)
     t0 = time.perf_counter()

@@ -9,19 +9,20 @@ import jax.numpy as jnp
 
 from ._bhop import safe_sqrt
 from ._params import Hopper
+from ._result import FAILURE_NAMES as FAILURE_NAMES
+from ._result import RESULT_NAMES as RESULT_NAMES
+from ._result import Result
 from ._terrain import Terrain
 
-# Result codes of a stride and of a run (0 = stride completed / run reached the goal).
-OK = SUCCESS = 0
-COLLISION = 1
-HOLE = 2
-OFF_MAP = 3
-OUTSIDE_DOMAIN = 4
-MAX_STEPS = 5
-SOLVER = 6
-RUNNING = -1
-FAILURE_NAMES = ("collision", "hole", "off_map", "outside_domain", "max_steps", "solver")
-RESULT_NAMES = ("success",) + FAILURE_NAMES
+# Stride outcomes as used here (a completed stride is `OK`); see `Result`.
+OK = SUCCESS = Result.SUCCESS
+COLLISION = Result.COLLISION
+HOLE = Result.HOLE
+OFF_MAP = Result.OFF_MAP
+OUTSIDE_DOMAIN = Result.OUTSIDE_DOMAIN
+MAX_STEPS = Result.MAX_STEPS
+SOLVER = Result.SOLVER
+RUNNING = Result.RUNNING
 
 _INF = jnp.inf
 

@@ -195,12 +195,3 @@ def _check_goal(goal_or_terrain) -> np.ndarray:
     if goal.shape != (3,) or not np.all(np.isfinite(goal)):
         raise InputError(f"goal: expected three finite numbers y,z,ydot, got {goal_or_terrain!r}")
     return goal
-
-
-def __getattr__(name):
-    # The plan cache lives in `_cache` (a later stage); its names stay importable from here.
-    if name in ("plan_key", "cache_dir", "save_plan", "load_plan", "get_plan"):
-        from . import _cache
-
-        return getattr(_cache, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -9,23 +9,16 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.colors import ListedColormap  # noqa: E402
 
-from ._flight import RESULT_NAMES  # noqa: E402
+from ._draw import (  # noqa: E402
+    draw_cross_sections,
+    draw_run,
+    draw_terrain,
+    policy_cross_sections,
+)
+from ._models import model_for  # noqa: E402
 from ._plan import Plan  # noqa: E402
+from ._result import RESULT_NAMES  # noqa: E402
 from ._terrain import Terrain  # noqa: E402
-
-
-def draw_terrain(ax, terrain: Terrain, perceived: Terrain | None = None, depth: float = 0.6):
-    """Blocks as filled rectangles; holes stay empty. A perceived map is drawn dashed."""
-    bottom = float(np.min(terrain.heights)) - depth
-    for s, e, h in terrain.blocks():
-        ax.fill_between([s, e], [bottom, bottom], [h, h], color="0.55", lw=0, zorder=1)
-        ax.plot([s, s, e, e], [bottom, h, h, bottom], color="0.25", lw=1.0, zorder=2)
-    if perceived is not None:
-        for s, e, h in perceived.blocks():
-            ax.plot([s, e], [h, h], "k--", lw=0.8, zorder=2)
-    ax.set_xlabel("y (m)")
-    ax.set_ylabel("z (m)")
-    ax.set_aspect("equal")
 
 
 def global_domain_figure(terrain: Terrain, states: np.ndarray, inside: np.ndarray,
@@ -42,198 +35,6 @@ def global_domain_figure(terrain: Terrain, states: np.ndarray, inside: np.ndarra
                  "grid states")
     fig.tight_layout()
     return fig
-
-
-# --- run geometry shared by the run figures and the animation ----------------------------
-
-
-def _ballistic(y0, z0, vy, vz, t, g, wind=0.0):
-    return y0 + vy * t + 0.5 * wind * t**2, z0 + vz * t - 0.5 * g * t**2
-
-
-def _first_within(ys, zs, foot, rho0):
-    """Index of the first sample within `rho0` of the foot (len(ys) if none)."""
-    d = np.hypot(ys - foot[0], zs - foot[1])
-    hit = np.nonzero(d <= rho0)[0]
-    return int(hit[0]) if hit.size else len(ys)
-
-
-def stride_paths(apexes: np.ndarray, footholds: np.ndarray, rho0: float = 1.0,
-                 g: float = 9.81, model: str = "bhop", wind: float = 0.0, n: int = 24):
-    """Reconstruct the COM path of a run, stride by stride, from its apexes and footholds.
-
-    Flight is ballistic (with the wind's horizontal acceleration). `bhop`: the foot is
-    directly below the COM at touchdown (`z = h + rho0`) and the instantaneous stance slides
-    the COM by `dy` at that height. `slip`: touchdown and liftoff are where the COM is
-    `rho0` from the foot (the leg is uncompressed at both); the stance in between is drawn
-    as a straight chord (the compression is not recorded by a run).
-
-    Returns:
-        list with one dict per stride taken: `descent` and `ascent` `(ys, zs)` arrays
-        (`ascent` is None after the last apex or on a failed stride), `td` and `lo` the COM
-        at touchdown and liftoff, `foot` the foothold `(y, h)`, `apex` and `t_down` the
-        descent's start and duration, `liftoff` = `(y, z, ydot, zdot, t_up)` (or None).
-    """
-    apexes = np.asarray(apexes, float)
-    feet = np.asarray(footholds, float)
-    apexes = apexes[np.all(np.isfinite(apexes), axis=1)]
-    feet = feet[np.all(np.isfinite(feet), axis=1)]
-    out = []
-    for k, (yf, h) in enumerate(feet):
-        if k >= len(apexes):
-            break
-        a = apexes[k]
-        b = apexes[k + 1] if k + 1 < len(apexes) else None
-        if model == "slip":
-            t_max = np.sqrt(max(2.0 * (a[1] - h) / g, 0.0))
-            t = np.linspace(0.0, t_max, 4000)
-            ys, zs = _ballistic(a[0], a[1], a[2], 0.0, t, g, wind)
-            i = min(_first_within(ys, zs, (yf, h), rho0), len(t) - 1)
-            t_d = t[i]
-        else:
-            t_d = np.sqrt(max(2.0 * (a[1] - h - rho0) / g, 0.0))
-        descent = _ballistic(a[0], a[1], a[2], 0.0, np.linspace(0.0, t_d, n), g, wind)
-        td = (descent[0][-1], descent[1][-1])
-        lo, ascent = td, None
-        if b is not None:
-            if model == "slip":
-                tau_max = np.sqrt(max(2.0 * (b[1] - h) / g, 0.0))
-                tau = np.linspace(0.0, tau_max, 4000)
-                ys, zs = _ballistic(b[0], b[1], -b[2], 0.0, tau, g, wind)
-                t_up = tau[min(_first_within(ys, zs, (yf, h), rho0), len(tau) - 1)]
-            else:
-                t_up = np.sqrt(max(2.0 * (b[1] - h - rho0) / g, 0.0))
-            y_lo = b[0] - b[2] * t_up + 0.5 * wind * t_up**2
-            z_lo = b[1] - 0.5 * g * t_up**2
-            ascent = _ballistic(y_lo, z_lo, b[2] - wind * t_up, g * t_up,
-                                np.linspace(0.0, t_up, n), g, wind)
-            lo = (y_lo, z_lo)
-            lift = (y_lo, z_lo, b[2] - wind * t_up, g * t_up, t_up)
-        out.append({"descent": descent, "ascent": ascent, "td": td, "lo": lo,
-                    "foot": (yf, h), "apex": tuple(a), "t_down": t_d,
-                    "liftoff": lift if b is not None else None})
-    return out
-
-
-def draw_run(ax, apexes: np.ndarray, footholds: np.ndarray, rho0: float = 1.0,
-             g: float = 9.81, color="tab:blue", label=None, model: str = "bhop",
-             wind: float = 0.0, legs: bool = False, ls="-"):
-    """COM path of a run from its apexes and footholds (see `stride_paths`).
-
-    Dots mark apexes, triangles footholds, `x` the initial apex. With `legs`, the leg is
-    drawn at touchdown and liftoff.
-    """
-    apexes = np.asarray(apexes)[np.all(np.isfinite(apexes), axis=1)]
-    feet = np.asarray(footholds)[np.all(np.isfinite(footholds), axis=1)]
-    paths = stride_paths(apexes, feet, rho0, g, model, wind)
-    for k, p in enumerate(paths):
-        kw = {"color": color, "lw": 1.2, "zorder": 5, "ls": ls}
-        ax.plot(*p["descent"], label=label if k == 0 else None, **kw)
-        (yf, h), td, lo = p["foot"], p["td"], p["lo"]
-        if p["ascent"] is not None:
-            ax.plot([td[0], lo[0]], [td[1], lo[1]], **kw)
-            ax.plot(*p["ascent"], **kw)
-        if legs:
-            for q in (td, lo) if p["ascent"] is not None else (td,):
-                ax.plot([q[0], yf], [q[1], h], color="0.2", lw=0.7, zorder=4)
-        elif model == "bhop":
-            ax.plot([yf, yf], [h, h + rho0], color="0.3", lw=0.6, zorder=4)
-    if feet.size:
-        ax.plot(feet[:, 0], feet[:, 1], "v", color=color, ms=5, zorder=6)
-    ax.plot(apexes[:, 0], apexes[:, 1], ".", color=color, ms=5, zorder=6)
-    ax.plot(apexes[0, 0], apexes[0, 1], "x", color=color, ms=8, mew=2, zorder=6)
-    if not paths and label is not None:
-        ax.plot([], [], color=color, label=label)
-
-
-# --- cross-sections of the policies' regions (Figs. 13, 19) ------------------------------
-
-
-def policy_cross_sections(plan: Plan, policies, apexes, n: int = 40):
-    """Cross-sections in `(y, z)` of the domain and feasible goal of the policies used.
-
-    For stride `k` (instantiated policy `policies[k]`, situated on a segment at `(py, h)`):
-    the domain `D` at the apex's velocity `apexes[k][2]` (eqs 38-41: heights from
-    the energy range, `y` such that the nominal touchdown lies on the segment) and the
-    feasible goal `Gf` at the policy goal's velocity (corrected eqs 45-50). The planner's
-    collision-free trims (SPEC section 5) are not drawn.
-
-    Returns:
-        list of `(domain_polygon, goal_polygon)`, each an `(m, 2)` array or None if empty.
-    """
-    import jax
-    import jax.numpy as jnp
-
-    from ._regions import domain_height_bounds, goal_height_bounds
-
-    policies = np.asarray(policies)
-    policies = policies[policies >= 0]
-    if policies.size == 0:
-        return []
-    apexes = np.asarray(apexes, float)[: policies.size]
-    nt = plan.templates.n
-    sit = plan.situated[policies]
-    t_idx, seg = sit % nt, sit // nt
-    centre = np.asarray(plan.table().centre)[seg]
-    goals = np.asarray(plan.goals)[policies]
-    hop, tmpls = plan.hopper, plan.templates
-    l = tmpls.half_length
-
-    def bounds(t, v_d, v_g, tmpls, hop):
-        def one(t, v_d, v_g):
-            tmpl = tmpls.row(t)
-            d = domain_height_bounds(v_d, tmpl, hop)
-            gb = goal_height_bounds(v_g, tmpl, hop)
-            return jnp.stack(d), jnp.stack(gb)
-
-        return jax.vmap(one)(t, v_d, v_g)
-
-    d_b, g_b = (np.asarray(x) for x in jax.jit(bounds)(
-        jnp.asarray(t_idx), jnp.asarray(apexes[:, 2]), jnp.asarray(goals[:, 2]), tmpls, hop))
-    dy_lo, dy_hi = np.asarray(tmpls.dy_lo)[t_idx], np.asarray(tmpls.dy_hi)[t_idx]
-    rho0, g = float(hop.rho0), float(hop.g)
-    out = []
-    for k in range(policies.size):
-        py, h = centre[k]
-        polys = []
-        lo, hi = d_b[k]
-        if np.isfinite(lo) and np.isfinite(hi) and hi > lo:
-            zr = np.linspace(lo, hi, n)
-            shift = apexes[k, 2] * np.sqrt(2.0 * zr / g)
-            left, right = py - l - shift, py + l - shift
-            polys.append(np.concatenate([np.stack([left, zr + h + rho0], 1),
-                                         np.stack([right, zr + h + rho0], 1)[::-1]]))
-        else:
-            polys.append(None)
-        lo, hi = g_b[k]
-        if np.isfinite(lo) and np.isfinite(hi) and hi > lo:
-            zr = np.linspace(lo, hi, n)
-            shift = goals[k, 2] * np.sqrt(2.0 * zr / g)  # eqs 49-50
-            y_lo, y_hi = shift + l + dy_lo[k], shift - l + dy_hi[k]
-            polys.append(np.concatenate([np.stack([py + y_lo, zr + h + rho0], 1),
-                                         np.stack([py + y_hi, zr + h + rho0], 1)[::-1]]))
-        else:
-            polys.append(None)
-        out.append(tuple(polys))
-    return out
-
-
-def draw_cross_sections(ax, sections, label=True):
-    """Domain cross-sections dark red, feasible-goal cross-sections light green."""
-    from matplotlib.patches import Polygon
-
-    first_d = first_g = label
-    for dom, goal in sections:
-        if dom is not None:
-            ax.add_patch(Polygon(dom, closed=True, fc="darkred", ec="none", alpha=0.28,
-                                 zorder=3, label="domain at the apex's ydot" if first_d
-                                 else None))
-            first_d = False
-        if goal is not None:
-            ax.add_patch(Polygon(goal, closed=True, fc="limegreen", ec="none", alpha=0.3,
-                                 zorder=3, label="feasible goal at the goal's ydot" if first_g
-                                 else None))
-            first_g = False
 
 
 def _headroom(ax, terrain: Terrain, runs, extra: float = 0.9):
@@ -263,13 +64,14 @@ def runs_figure(terrain: Terrain, runs: list[dict], goal=None, title="Example ru
     fig, ax = plt.subplots(figsize=(11, 3.8))
     draw_terrain(ax, terrain, perceived)
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    legs = not model_for(model).instant_stance
     for i, run in enumerate(runs):
         if plan is not None:
             sections = policy_cross_sections(plan, run["policies"][: int(run["steps"])],
                                              run["apexes"])
             draw_cross_sections(ax, sections, label=i == 0)
         draw_run(ax, run["apexes"], run["footholds"], rho0, g, colors[i % len(colors)],
-                 _run_label(i, run), model=model, wind=wind, legs=model == "slip")
+                 _run_label(i, run), model=model, wind=wind, legs=legs)
     if goal is not None:
         ax.plot(goal[0], goal[1], "ko", ms=7, label="global goal", zorder=7)
     _headroom(ax, terrain, runs, 1.0 if plan is None else 1.3)
@@ -295,6 +97,7 @@ def long_run_figure(plan: Plan, run: dict, model: str = "slip", title: str | Non
     cannot realise the BHop goals exactly; the reactive controller absorbs the difference).
     """
     terrain = plan.terrain if true_terrain is None else true_terrain
+    name = model_for(model).name.upper()
     steps = int(run["steps"])
     apexes = np.asarray(run["apexes"])[: steps + 1]
     apexes = apexes[np.all(np.isfinite(apexes), axis=1)]
@@ -304,7 +107,7 @@ def long_run_figure(plan: Plan, run: dict, model: str = "slip", title: str | Non
     draw_terrain(ax, terrain)
     draw_run(ax, run["apexes"], run["footholds"], float(plan.hopper.rho0),
              float(plan.hopper.g), "tab:blue",
-             f"{model.upper()} COM path: {RESULT_NAMES[int(run['code'])]} in {steps} strides",
+             f"{name} COM path: {RESULT_NAMES[int(run['code'])]} in {steps} strides",
              model=model, legs=True)
     ax.plot(goals[:, 0], goals[:, 1], "o", mfc="none", mec="tab:green", ms=6, zorder=7,
             label="goal of the policy chosen at each apex")
@@ -320,7 +123,7 @@ def long_run_figure(plan: Plan, run: dict, model: str = "slip", title: str | Non
     ax.plot([], [], color="0.2", lw=0.7, label="leg at touchdown / liftoff")
     back = int(np.sum(np.diff(apexes[:, 0]) < 0))
     ax.legend(loc="upper left", fontsize=8, ncol=2)
-    ax.set_title(title or f"{model.upper()} across '{terrain.name}' with the reactive planner "
+    ax.set_title(title or f"{name} across '{terrain.name}' with the reactive planner "
                  f"({back} backward stride{'' if back == 1 else 's'})")
     ax.set_ylim(float(np.min(terrain.heights)) - 0.6,
                 max(float(np.max(apexes[:, 1])), float(np.max(goals[:, 1], initial=0))) + 0.8)
@@ -355,109 +158,6 @@ def doa_figure(terrain: Terrain, initial: np.ndarray, code: np.ndarray, steps: n
     ax.set_title(f"{title}: {rate:.1f}% of {ok.size} initial apexes reach the goal")
     fig.tight_layout()
     return fig
-
-
-# --- offline plan replayed open loop (Figs. 14-15) ----------------------------------------
-
-
-def nominal_controls(plan: Plan, run: dict) -> np.ndarray:
-    """BHop controls `(dy, th, k)` the reactive controller applied at each apex of a run.
-
-    Recomputed from the recorded (true) apexes, so exact for an undisturbed run.
-    """
-    import jax
-    import jax.numpy as jnp
-
-    from ._execute import decide
-
-    steps = int(run["steps"])
-    if steps == 0:
-        return np.zeros((0, 3))
-    apexes = jnp.asarray(np.asarray(run["apexes"])[:steps], float)
-    decide_all = jax.jit(jax.vmap(decide, (0, None, None)))
-    found, u, a = decide_all(apexes, plan.tables(), plan.hopper)
-    return np.asarray(u)
-
-
-def _goal_controls(measured, goal, h, tmpl, hopper):
-    """BHop deadbeat toward `goal`, clipped to the template's limits (as `decide`)."""
-    import jax.numpy as jnp
-
-    from ._bhop import deadbeat_bhop
-
-    u = deadbeat_bhop(measured, goal, h, hopper)
-    lo = jnp.stack([tmpl.dy_lo, tmpl.th_lo, tmpl.k_lo])
-    hi = jnp.stack([tmpl.dy_hi, tmpl.th_hi, tmpl.k_hi])
-    return jnp.clip(jnp.where(jnp.isfinite(u), u, hi), lo, hi)
-
-
-def open_loop_replay(plan: Plan, run: dict, *, disturbance=None, key=None,
-                     true_terrain: Terrain | None = None, mode: str = "controls",
-                     tolerance=(0.05, 0.05, 0.05)) -> dict:
-    """Replay a nominal run's plan open loop, without reactive re-selection (Figs. 14-15).
-
-    `mode = "controls"`: the nominal run's control sequence (`nominal_controls`) is applied
-    stride by stride with `bhop_stride`, whatever happens (the paper's "offline plan").
-    `mode = "goals"`: the nominal run's sequence of policy goals is kept, and the BHop
-    deadbeat toward the k-th goal is computed from the k-th *measured* apex (sensor noise
-    drawn as in `run_one` for run 0 of a batch with the same `key`), clipped to that policy's
-    limits. The stride uses `true_terrain` (default: the plan's map) and the wind.
-
-    Returns:
-        a run dict (`code, steps, apexes, footholds, policies`, as from `run_batch` for one
-        run): `success` if the last apex is within `tolerance` of the plan's goal, otherwise
-        the failure, or `max_steps` when the sequence ran out away from the goal.
-    """
-    import jax
-    import jax.numpy as jnp
-
-    from ._execute import bhop_stride
-    from ._flight import MAX_STEPS, OK, SUCCESS
-    from ._params import Disturbance
-
-    if mode not in ("controls", "goals"):
-        raise ValueError(f"mode must be 'controls' or 'goals', got {mode!r}")
-    disturbance = Disturbance() if disturbance is None else disturbance
-    key = jax.random.fold_in(jax.random.key(0) if key is None else key, 0)
-    terrain = plan.terrain if true_terrain is None else true_terrain
-    hop, tmpls = plan.hopper, plan.templates
-    steps = int(run["steps"])
-    policies = np.asarray(run["policies"])[:steps]
-    controls = nominal_controls(plan, run) if mode == "controls" else None
-    n = len(run["footholds"])
-    apexes = np.full((n + 1, 3), np.nan)
-    feet = np.full((n, 2), np.nan)
-    used = np.full(n, -1, np.int32)
-    apex = np.asarray(run["apexes"][0], float)
-    apexes[0] = apex
-    centre = np.asarray(plan.table().centre)
-    stride, goal_controls = jax.jit(bhop_stride), jax.jit(_goal_controls)
-    code, taken = OK, 0
-    for k in range(steps):
-        if mode == "controls":
-            u = jnp.asarray(controls[k])
-        else:
-            a = int(policies[k])
-            s = int(plan.situated[a])
-            tmpl = tmpls.row(s % tmpls.n)
-            h = centre[s // tmpls.n, 1]
-            noise = jax.random.uniform(jax.random.fold_in(key, k), (3,), minval=-1.0,
-                                       maxval=1.0)
-            measured = jnp.asarray(apex) + noise * disturbance.sensor
-            u = goal_controls(measured, jnp.asarray(plan.goals[a]), h, tmpl, hop)
-        nxt, c, foot = stride(jnp.asarray(apex), u, terrain, hop, disturbance.wind)
-        feet[k], used[k] = np.asarray(foot), policies[k]
-        taken = k + 1
-        if int(c) != OK:
-            code = int(c)
-            break
-        apex = np.asarray(nxt)
-        apexes[k + 1] = apex
-    if code == OK:
-        at_goal = np.all(np.abs(apex - plan.goal) <= np.asarray(tolerance))
-        code = SUCCESS if at_goal else MAX_STEPS
-    return {"code": np.int32(code), "steps": np.int32(taken), "apexes": apexes,
-            "footholds": feet, "policies": used}
 
 
 def disturbance_figure(terrain: Terrain, nominal: dict, open_loop: dict, reactive: dict,
@@ -501,6 +201,9 @@ def disturbance_figure(terrain: Terrain, nominal: dict, open_loop: dict, reactiv
     fig.suptitle("x: start, dots: apexes, triangles: footholds", fontsize=9, y=0.995)
     fig.tight_layout()
     return fig
+
+
+# --- figures of a plan ----------------------------------------------------------------
 
 
 def template_regions_figure(templates, hopper, n: int = 121):
@@ -580,111 +283,3 @@ def prepares_figure(plan: Plan, max_points: int = 400_000):
     ax.set_title(f"Prepares relation: {p.nnz} entries of P, {plan.stats['n_edges']} edges")
     fig.tight_layout()
     return fig
-
-
-ANIMATION_FORMATS = (".gif", ".mp4")
-
-
-def animation_writer(path: str, fps: int):
-    """A matplotlib writer for `path`: Pillow for `.gif`, ffmpeg for `.mp4`.
-
-    Raises:
-        InputError: another extension, or `.mp4` without an ffmpeg encoder.
-    """
-    import os
-
-    from matplotlib.animation import FFMpegWriter, PillowWriter, writers
-
-    from ._errors import InputError
-
-    ext = os.path.splitext(path)[1].lower()
-    if ext == ".gif":
-        return PillowWriter(fps=fps)
-    if ext == ".mp4":
-        if not writers.is_available("ffmpeg"):
-            raise InputError(f"cannot write {path}: MP4 needs ffmpeg, which is not installed "
-                             "(write a .gif instead)")
-        return FFMpegWriter(fps=fps)
-    raise InputError(f"{path}: the file name must end with .gif or .mp4")
-
-
-def animation_frames(run: dict, rho0: float = 1.0, g: float = 9.81, fps: int = 25,
-                     model: str = "bhop", wind: float = 0.0) -> list[tuple]:
-    """Frames `(com_y, com_z, foot_y, foot_z, in_contact)` of a run at `fps`.
-
-    Flight follows `stride_paths` in time steps of `1 / fps`; the BHop stance
-    (instantaneous) and the SLIP stance (not recorded) take four frames each, the COM moving
-    along the chord from touchdown to liftoff with the foot planted. The leg hangs below the
-    COM while descending and is half retracted while rising.
-    """
-    apexes = np.asarray(run["apexes"])
-    apexes = apexes[np.all(np.isfinite(apexes), axis=1)]
-    frames = []
-    dt = 1.0 / fps
-    for p in stride_paths(apexes, run["footholds"], rho0, g, model, wind, n=2):
-        (yf, h), td, lo = p["foot"], p["td"], p["lo"]
-        y0, z0, vy0 = p["apex"]
-        for t in np.arange(0.0, p["t_down"], dt):
-            cy, cz = _ballistic(y0, z0, vy0, 0.0, t, g, wind)
-            frames.append((cy, cz, cy + yf - td[0], cz + h - td[1], False))
-        if p["liftoff"] is None:
-            frames.append((td[0], td[1], yf, h, True))
-            continue
-        for s in np.linspace(0.0, 1.0, 4):
-            frames.append((td[0] + s * (lo[0] - td[0]), td[1] + s * (lo[1] - td[1]), yf, h,
-                           True))
-        y1, z1, vy1, vz1, t_up = p["liftoff"]
-        for t in np.arange(dt, t_up, dt):
-            cy, cz = _ballistic(y1, z1, vy1, vz1, t, g, wind)
-            frames.append((cy, cz, cy, cz - 0.6 * rho0, False))
-    if not frames:
-        frames.append((apexes[0, 0], apexes[0, 1], apexes[0, 0], apexes[0, 1] - rho0, False))
-    return frames
-
-
-def animate_run(terrain: Terrain, run: dict, path: str, rho0: float = 1.0, g: float = 9.81,
-                fps: int = 25, goal=None, model: str = "bhop", wind: float = 0.0,
-                dpi: int = 80) -> str:
-    """Write an animation of a run: the body, its leg, the terrain and the footholds.
-
-    The motion is rebuilt from the apexes and footholds (`animation_frames`). `path` ending
-    in `.gif` is written with Pillow, `.mp4` with ffmpeg (`animation_writer`). Returns the
-    path written.
-    """
-    from matplotlib.animation import FuncAnimation
-
-    writer = animation_writer(path, fps)
-    apexes = np.asarray(run["apexes"])
-    apexes = apexes[np.all(np.isfinite(apexes), axis=1)]
-    frames = animation_frames(run, rho0, g, fps, model, wind)
-    fig, ax = plt.subplots(figsize=(9, 3.4))
-    draw_terrain(ax, terrain)
-    if goal is not None:
-        ax.plot(goal[0], goal[1], "ko", ms=6, label="global goal")
-    ax.set_ylim(float(np.min(terrain.heights)) - 0.6, float(np.max(apexes[:, 1])) + 0.3)
-    (leg,) = ax.plot([], [], color="0.2", lw=2, zorder=6)
-    (body,) = ax.plot([], [], "o", color="tab:orange", ms=12, zorder=7)
-    (marks,) = ax.plot([], [], "v", color="tab:blue", ms=6, zorder=5, label="footholds")
-    ax.set_title(f"{model.upper()}: {RESULT_NAMES[int(run['code'])]} in "
-                 f"{int(run['steps'])} strides")
-    if goal is not None:
-        ax.legend(loc="upper left", fontsize=8)
-    fig.tight_layout()
-    contacts: list[tuple[float, float]] = []
-
-    def draw(i):
-        cy, cz, fy, fz, contact = frames[i]
-        if contact and (not contacts or contacts[-1] != (fy, fz)):
-            contacts.append((fy, fz))
-        leg.set_data([cy, fy], [cz, fz])
-        body.set_data([cy], [cz])
-        if contacts:
-            marks.set_data(*zip(*contacts))
-        return leg, body, marks
-
-    anim = FuncAnimation(fig, draw, frames=len(frames), blit=True)
-    try:
-        anim.save(path, writer=writer, dpi=dpi)
-    finally:
-        plt.close(fig)
-    return path

@@ -3,8 +3,8 @@
 import jax.numpy as jnp
 import pytest
 
-from jaxhop._execute import bhop_stride
 from jaxhop._flight import COLLISION, HOLE, OFF_MAP, OK, touchdown
+from jaxhop._models import bhop_stride
 from jaxhop._params import Hopper
 from jaxhop._terrain import make_terrain
 

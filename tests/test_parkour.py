@@ -447,7 +447,8 @@ def test_reactive_runs_never_touch_forbidden_floor(small_plans):
 
 @pytest.mark.slow
 def test_touchdown_in_restricted_area_is_classified(small_plans):
-    from jaxhop.parkour._run import _step_batch, disturbance
+    from jaxhop._params import disturbance_for as disturbance
+    from jaxhop.parkour._run import _step_batch
 
     course, hop, cps, _ = small_plans
     padded = pad_plans(cps)

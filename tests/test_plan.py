@@ -7,11 +7,13 @@ import pytest
 
 from jaxhop._cache import get_plan
 from jaxhop._deploy import check_order
-from jaxhop._execute import first_match, run_batch, run_one, sweep
+from jaxhop._execute import run_batch, sweep
 from jaxhop._flight import OK, SUCCESS, touchdown
+from jaxhop._models import first_match
 from jaxhop._params import Disturbance, disturbance_for
 from jaxhop._plan import build_plan
 from jaxhop._regions import template_domain_contains
+from jaxhop._runloop import run_one
 from jaxhop._terrain import builtin_terrain, segments
 
 
@@ -84,7 +86,7 @@ def test_nominal_sweep_is_correct_by_construction(plan):
 def test_run_jit_vmap_and_seed_reproducibility(plan):
     tables = plan.tables()
     starts = np.array([[0.4, 1.6, 0.5], [1.2, 1.9, 0.5], [2.0, 1.4, 0.5]])
-    from jaxhop._execute import RunConfig
+    from jaxhop._runloop import RunConfig
 
     cfg = RunConfig(goal=jnp.asarray(plan.goal), max_steps=12)
     dist = disturbance_for("sensor")

@@ -52,17 +52,10 @@ def test_doa_figure_counts_successes_and_failures():
 
 import pytest  # noqa: E402
 
-from jaxhop._plot import (  # noqa: E402
-    animate_run,
-    animation_frames,
-    animation_writer,
-    disturbance_figure,
-    long_run_figure,
-    nominal_controls,
-    open_loop_replay,
-    policy_cross_sections,
-    stride_paths,
-)
+from jaxhop._animate import animate_run, animation_frames, animation_writer  # noqa: E402
+from jaxhop._draw import policy_cross_sections, stride_paths  # noqa: E402
+from jaxhop._plot import disturbance_figure, long_run_figure  # noqa: E402
+from jaxhop._replay import nominal_controls, open_loop_replay  # noqa: E402
 
 G, RHO0 = 9.81, 1.0
 

@@ -23,8 +23,9 @@ import pytest
 import jaxhop
 from jaxhop import Disturbance, Hopper, build_plan, make_templates, paper_templates
 from jaxhop import reference as R
-from jaxhop._execute import decide, run_batch, sweep_grid
+from jaxhop._execute import run_batch, sweep_grid
 from jaxhop._flight import touchdown
+from jaxhop._models import decide
 from jaxhop._policies import template_boxes
 
 SUBSET = [6, 7, 8, 9, 11, 12, 13, 14]

@@ -23,8 +23,9 @@ import pytest
 import jaxhop
 from jaxhop import Hopper, build_plan, make_templates, paper_templates
 from jaxhop import reference as R
-from jaxhop._execute import decide, run_batch, sweep_grid
+from jaxhop._execute import run_batch, sweep_grid
 from jaxhop._flight import COLLISION, HOLE, OFF_MAP, OK
+from jaxhop._models import decide
 from jaxhop._slip import slip_apex_map, slip_stride
 from jaxhop._slip_deadbeat import KAPPA_HI, KAPPA_LO, RATIO_HI, RATIO_LO, deadbeat_slip
 from jaxhop._terrain import make_terrain

@@ -198,7 +198,8 @@ def test_slip_reaches_the_goal_where_reversing_goals_made_it_cycle():
     # max_steps (0 of 48 sweep states succeeded). The success test is the goal
     # tolerance: the true apex within 0.05 of the goal in every coordinate.
     from jaxhop._cli import _perceived
-    from jaxhop._execute import in_global_domain, run_batch
+    from jaxhop._execute import run_batch
+    from jaxhop._models import in_global_domain
     from jaxhop._plan import build_plan
 
     true = builtin_terrain("reference")

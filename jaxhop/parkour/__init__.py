@@ -1,4 +1,4 @@
-"""The 2012 reactive planner on MPPC parkour courses (issue 8; docs/parkour_reactive.md).
+"""The 2012 reactive planner on MPPC parkour courses (docs/parkour_reactive.md).
 
 Course -> terrain (`course_map`: obstacles as blocks, restricted floor and margin bands as
 forbidden blocks), Froude-scaled templates for the MPPC leg (`leg_hopper`,

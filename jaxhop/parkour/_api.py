@@ -6,19 +6,18 @@ import time
 
 import numpy as np
 
-from .._flight import SUCCESS
 from .._params import Hopper
+from .._result import COURSE_FAILURE_NAMES, Result, failure_counts, result_name
 from ..mppc._course import Course
-from ._map import PARKOUR_FAILURES, leg_hopper, leg_templates
+from ._map import leg_hopper, leg_templates
 from ._run import (
+    course_disturbance,
     course_plans,
     decision_ms,
-    disturbance,
     executed_strides,
     first_descent,
     initial_states,
     pad_plans,
-    result_name,
     run_reactive,
 )
 
@@ -57,10 +56,10 @@ def reactive_parkour(course: Course, *, model: str = "bhop", noise: str = "none"
     run_s = time.perf_counter() - t0
     dec = decision_ms(cps, padded, apex0[: min(20, len(apex0))], hopper, model)
     code = res["code"]
-    wind = disturbance(noise, hopper).wind
+    wind = course_disturbance(noise, hopper).wind
     executed = executed_strides(res, 0, hopper, wind)
     flight = first_descent(res, 0, hopper) + sum(j["t"] for j in executed)
-    ok = code == SUCCESS
+    ok = code == Result.SUCCESS
     c0 = int(code[0])
     violations = []
     if result_name(c0) in ("restricted", "margin", "collision"):
@@ -74,19 +73,19 @@ def reactive_parkour(course: Course, *, model: str = "bhop", noise: str = "none"
         "planner": "reactive",
         "model": model,
         "noise": noise,
-        "finished": bool(c0 == SUCCESS),
+        "finished": bool(c0 == Result.SUCCESS),
         "jumps": len(executed),
         "flight_time": float(flight),
         "replan_ms": _stats(dec),
         "violations": len(violations),
         "violation_details": violations,
-        "failure": None if c0 == SUCCESS else result_name(c0),
+        "failure": None if c0 == Result.SUCCESS else result_name(c0),
         "executed": executed,
         "initial_apex": apex0[0].tolist(),
         "runs": int(len(code)),
         "seed": int(seed),
         "success_rate": float(ok.mean()),
-        "failures": {name: int((code == i + 1).sum()) for i, name in enumerate(PARKOUR_FAILURES)},
+        "failures": failure_counts(code, COURSE_FAILURE_NAMES),
         "mean_jumps": float(res["steps"][ok].mean()) if ok.any() else None,
         "mean_flight_time": float(np.mean(times)) if times else None,
         "coverage": float(coverage),

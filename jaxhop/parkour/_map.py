@@ -35,16 +35,16 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._params import Hopper
+from .._result import COURSE_FAILURE_NAMES, Result
 from .._templates import REFERENCE_HOPPER
 from .._terrain import SEGMENT_LENGTH, Terrain, make_terrain
 from ..mppc._course import Course, Environment
 from ..mppc._robot import Robot
 
-#: Failure codes beyond `jaxhop._flight`'s: a touchdown in a restricted area / margin band.
-RESTRICTED = 7
-MARGIN = 8
-PARKOUR_FAILURES = ("collision", "hole", "off_map", "outside_domain", "max_steps", "solver",
-                    "restricted", "margin")
+#: Failure codes of a touchdown in a restricted area / margin band, and all course failures.
+RESTRICTED = Result.RESTRICTED
+MARGIN = Result.MARGIN
+PARKOUR_FAILURES = COURSE_FAILURE_NAMES
 #: Goal apex height above the virtual ground, in leg lengths (the paper's 1.3 m goal over
 #: flat ground for a 1 m leg).
 GOAL_ZR = 0.3

@@ -3,16 +3,16 @@
 `course_plans` builds the plan of the course's first environment in full and, for every
 snapshot, updates it incrementally (`build_course_plan(..., previous=...)`), timing each
 update (optionally against a full rebuild). `run_reactive` runs a batch of initial apexes
-through the paper's reactive controller (first match, deadbeat, clip; SPEC section 10) on
-the true terrain of the environment in force: environment `e` is in force from stride
+through the paper's reactive controller (Fig. 8: first match, deadbeat, clip; the run loop's
+`step`) on the true terrain of the environment in force: environment `e` is in force from stride
 `from_jump` on, so stride `k` is decided with the plan of the snapshot of replan `k`.
 
 A stride fails with `restricted` (`margin`) when its touchdown lies strictly inside a
-restricted area (a margin band). Disturbances (Froude-scaled from SPEC section 11 by the
-hopper's size): `wind` (horizontal acceleration `-0.2 g / 9.81` in flight), `sensor`
-(uniform apex measurement noise `+-0.05` leg lengths on `y`, `z` and `+-0.05 sqrt(g rho0 /
-9.81)` on `ydot`), `landing` (the true apex is shifted by uniform `+-0.05` leg lengths in
-`y` before each descent, i.e. each touchdown lands that much off).
+restricted area (a margin band). Disturbances (section VI-C's, Froude-scaled by the hopper's
+size: `jaxhop._params.disturbance_for`): `wind` (horizontal acceleration `-0.2 g / 9.81` in
+flight), `sensor` (uniform apex measurement noise `+-0.05` leg lengths on `y`, `z` and
+`+-0.05 sqrt(g rho0 / 9.81)` on `ydot`), `landing` (the true apex is shifted by uniform
+`+-0.05` leg lengths in `y` before each descent, i.e. each touchdown lands that much off).
 
 All plans of a course are padded to common shapes, so one compilation of the stride
 serves every snapshot (and every course with the same padded sizes).
@@ -24,24 +24,27 @@ import dataclasses
 import math
 import time
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._execute import decide, first_match, stride
-from .._flight import OK, OUTSIDE_DOMAIN, RUNNING, SOLVER, SUCCESS
-from .._params import Hopper
+from .._batching import bucket, pad_terrain, pad_to
+from .._models import decide, in_global_domain
+from .._params import NOISE_KINDS, Hopper, check_noise, disturbance_for
 from .._plan import PlanTables
 from .._policies import PairGrid, SituatedTable
+from .._result import Result
+from .._runloop import RunConfig, World, final_code, step
 from .._templates import template_scales
-from .._terrain import Terrain
 from ..mppc._course import Course
 from ._build import CoursePlan, build_course_plan
-from ._map import PARKOUR_FAILURES, RESTRICTED, CourseMap, course_map
+from ._map import CourseMap, course_map
 
-NOISE = ("none", "wind", "sensor", "landing")
-MAX_STEPS = 80
+#: Disturbances of course runs: `ground` does not apply (the planner's map of a course is
+#: exact; its uncertainty is the snapshots').
+COURSE_NOISE = tuple(k for k in NOISE_KINDS if k != "ground")
+#: Strides a course run may take before it ends with `max_steps`.
+MAX_STRIDES = 80
 #: Course plans: coarser intersection grid than `jaxhop.build_plan`'s 16 x 16 (docs).
 COURSE_GRID = PairGrid(8, 8)
 
@@ -126,97 +129,56 @@ def identical_plans(a: CoursePlan, b: CoursePlan) -> bool:
 # --- padding: one compiled stride for every environment ------------------------------
 
 
-def _bucket(n: int, step: int) -> int:
-    return max(step, step * math.ceil(n / step))
-
-
-def _pad_terrain(t: Terrain, n: int) -> Terrain:
-    k = n - t.n_blocks
-    end, h = t.ends[-1], t.heights[-1]
-    return Terrain(jnp.concatenate([t.starts, jnp.full(k, end)]),
-                   jnp.concatenate([t.ends, jnp.full(k, end)]),
-                   jnp.concatenate([t.heights, jnp.full(k, h)]), t.name, None)
-
-
 def _pad_tables(cp: CoursePlan, n_blocks: int, n_seg: int, n_inst: int) -> PlanTables:
     tb = cp.plan.tables()
     t = tb.table
     nb, ns = t.block_first.shape[0], t.seg_block.shape[0]
-    nt = cp.plan.templates.n
     end = t.block_left[-1] * 0 + cp.plan.terrain.ends[-1]
-    table = SituatedTable(
-        jnp.concatenate([t.centre, jnp.tile(jnp.array([[1e6, 0.0]]), (n_seg - ns, 1))]),
-        jnp.concatenate([t.seg_block, jnp.full(n_seg - ns, nb - 1, t.seg_block.dtype)]),
-        jnp.concatenate([t.edge_distance, jnp.zeros(n_seg - ns)]),
-        jnp.concatenate([t.block_first, jnp.full(n_blocks - nb, ns, t.block_first.dtype)]),
-        jnp.concatenate([t.block_count, jnp.zeros(n_blocks - nb, t.block_count.dtype)]),
-        jnp.concatenate([t.block_left, jnp.full(n_blocks - nb, end)]))
-    big = jnp.iinfo(jnp.int32).max
-    k = (n_seg - ns) * nt
-    goals = tb.goals
-    return PlanTables(table, tb.templates, _pad_terrain(tb.terrain, n_blocks),
-                      jnp.concatenate([tb.best_pos, jnp.full(k, big, tb.best_pos.dtype)]),
-                      jnp.concatenate([tb.best_inst, jnp.zeros(k, tb.best_inst.dtype)]),
-                      jnp.concatenate([goals, jnp.zeros((n_inst - goals.shape[0], 3))]))
+    table = SituatedTable(pad_to(t.centre, n_seg, jnp.array([1e6, 0.0])),
+                          pad_to(t.seg_block, n_seg, nb - 1),
+                          pad_to(t.edge_distance, n_seg, 0.0),
+                          pad_to(t.block_first, n_blocks, ns),
+                          pad_to(t.block_count, n_blocks, 0),
+                          pad_to(t.block_left, n_blocks, end))
+    k = n_seg * cp.plan.templates.n
+    return PlanTables(table, tb.templates, pad_terrain(tb.terrain, n_blocks),
+                      pad_to(tb.best_pos, k, jnp.iinfo(jnp.int32).max),
+                      pad_to(tb.best_inst, k, 0), pad_to(tb.goals, n_inst, 0.0))
 
 
 def _forbidden(m: CourseMap, n: int) -> jnp.ndarray:
-    f = m.forbidden_intervals()
-    pad = np.tile([[0.0, 0.0, 0.0]], (n - f.shape[0], 1))
-    return jnp.asarray(np.concatenate([f, pad]))
+    return pad_to(np.asarray(m.forbidden_intervals(), float), n, 0.0)
 
 
-class Disturb(eqx.Module):
-    wind: float
-    sensor: jnp.ndarray
-    landing: float
+def course_disturbance(noise: str, hopper: Hopper):
+    """The disturbance of a course run, Froude-scaled to the hopper (`COURSE_NOISE`)."""
+    return disturbance_for(check_noise(noise, COURSE_NOISE), hopper)
 
 
-def disturbance(noise: str, hopper: Hopper) -> Disturb:
-    """Froude-scaled disturbance of a named kind (see the module docstring)."""
-    if noise not in NOISE:
-        raise ValueError(f"noise must be one of {', '.join(NOISE)}, got {noise!r}")
-    f = template_scales(hopper)
-    wind = -0.2 * float(hopper.g) / 9.81 if noise == "wind" else 0.0
-    sensor = (jnp.array([0.05 * f["length"], 0.05 * f["length"], 0.05 * f["velocity"]])
-              if noise == "sensor" else jnp.zeros(3))
-    landing = 0.05 * f["length"] if noise == "landing" else 0.0
-    return Disturb(wind, sensor, landing)
+def _course_step(apex, code, key, k, world: World, config: RunConfig):
+    """`step` for the runs still going (ended runs keep their code): `(apex, code, foothold,
+    policy, stepping)`."""
+    s = step(apex, key, k, world, config)
+    running = code == Result.RUNNING
+    stepping = running & s.stepping
+    return (jnp.where(running & s.ok, s.next_apex, apex), jnp.where(running, s.code, code),
+            jnp.where(stepping, s.foothold, jnp.nan), jnp.where(stepping, s.policy, -1),
+            stepping)
+
+
+def _course_config(goal, tol, model, max_steps: int = MAX_STRIDES) -> RunConfig:
+    # Course runs draw four uniforms per apex: sensor noise and the landing error.
+    return RunConfig(goal, tol, max_steps=max_steps, model=model, landing=True)
 
 
 def _step_one(apex, code, key, k, tables, true_terrain, forb, goal, tol, dist, hopper, model):
-    running = code == RUNNING
-    at_goal = jnp.all(jnp.abs(apex - goal) <= tol)
-    noise = jax.random.uniform(jax.random.fold_in(key, k), (4,), minval=-1.0, maxval=1.0)
-    measured = apex + noise[:3] * dist.sensor
-    found, u, a = decide(measured, tables, hopper, model)
-    true_apex = apex.at[0].add(noise[3] * dist.landing)
-    nxt, s_code, foot = stride(true_apex, u, true_terrain, hopper, dist.wind, model)
-    s_code = jnp.where(jnp.all(jnp.isfinite(nxt)) | (s_code != OK), s_code, SOLVER)
-    inside = (foot[0] > forb[:, 0] + 1e-9) & (foot[0] < forb[:, 1] - 1e-9) & (forb[:, 2] > 0)
-    kind = jnp.max(jnp.where(inside, forb[:, 2], 0.0)).astype(jnp.int32)
-    # A restricted area outranks a margin band.
-    kind = jnp.where(jnp.any(inside & (forb[:, 2] == RESTRICTED)), RESTRICTED, kind)
-    s_code = jnp.where((s_code == OK) & (kind > 0), kind, s_code)
-    new_code = jnp.where(at_goal, SUCCESS, jnp.where(~found, OUTSIDE_DOMAIN,
-                                                     jnp.where(s_code == OK, RUNNING, s_code)))
-    stepping = running & ~at_goal & found
-    code = jnp.where(running, new_code, code)
-    ok = stepping & (s_code == OK)
-    return (jnp.where(ok, nxt, apex), code, jnp.where(stepping, foot, jnp.nan),
-            jnp.where(stepping, a, -1), stepping)
+    return _course_step(apex, code, key, k, World(tables, true_terrain, hopper, dist, forb),
+                        _course_config(goal, tol, model))
 
 
 _step_batch = jax.jit(jax.vmap(_step_one, (0, 0, 0, None, None, None, None, None, None, None,
                                            None, None)), static_argnames=("model",))
-
-
-def _decide_one(apex, tables, hopper, model):
-    return decide(apex, tables, hopper, model)
-
-
-_decide_jit = jax.jit(_decide_one, static_argnames=("model",))
-_in_domain = jax.jit(jax.vmap(lambda z, t, h: first_match(z, t, h)[0], (0, None, None)))
+_decide_jit = jax.jit(decide, static_argnames=("model",))
 
 
 @dataclasses.dataclass
@@ -227,17 +189,17 @@ class Padded:
 
 
 def pad_plans(cps: CoursePlans) -> Padded:
-    nb = _bucket(max(m.true.n_blocks for m in cps.maps) + 1, 64)
-    ns = _bucket(max(cp.plan.stats["n_segments"] for cp in cps.plans), 256)
-    ni = _bucket(max(cp.plan.goals.shape[0] for cp in cps.plans), 65536)
-    nf = _bucket(max(m.forbidden_intervals().shape[0] for m in cps.maps), 32)
+    nb = bucket(max(m.true.n_blocks for m in cps.maps) + 1, 64)
+    ns = bucket(max(cp.plan.stats["n_segments"] for cp in cps.plans), 256)
+    ni = bucket(max(cp.plan.goals.shape[0] for cp in cps.plans), 65536)
+    nf = bucket(max(m.forbidden_intervals().shape[0] for m in cps.maps), 32)
     return Padded([_pad_tables(cp, nb, ns, ni) for cp in cps.plans],
-                  [_pad_terrain(m.true, nb) for m in cps.maps],
+                  [pad_terrain(m.true, nb) for m in cps.maps],
                   [_forbidden(m, nf) for m in cps.maps])
 
 
 def goal_tolerance(hopper: Hopper) -> np.ndarray:
-    """SPEC's 0.05 m, 0.05 m, 0.05 m/s, Froude-scaled."""
+    """The goal tolerance (0.05 m, 0.05 m, 0.05 m/s for the paper's hopper), Froude-scaled."""
     f = template_scales(hopper)
     return np.array([0.05 * f["length"], 0.05 * f["length"], 0.05 * f["velocity"]])
 
@@ -258,7 +220,7 @@ def initial_states(cps: CoursePlans, padded: Padded, n: int, seed: int,
         box = np.column_stack([cps.course.start + rng.uniform(0, 1, m) * leg,
                                leg * (1.0 + rng.uniform(0.3, 0.8, m)),
                                rng.uniform(0, 0.3, m) * v])
-        inside = np.asarray(_in_domain(jnp.asarray(box), padded.tables[0], hopper))
+        inside = in_global_domain(box, padded.tables[0], hopper)
         tried += m
         kept += int(inside.sum())
         out.extend(box[inside].tolist())
@@ -266,8 +228,12 @@ def initial_states(cps: CoursePlans, padded: Padded, n: int, seed: int,
 
 
 def run_reactive(cps: CoursePlans, padded: Padded, apex0, *, hopper: Hopper, noise="none",
-                 seed: int = 0, model: str = "bhop", max_steps: int = MAX_STEPS) -> dict:
+                 seed: int = 0, model: str = "bhop", max_steps: int = MAX_STRIDES) -> dict:
     """Run a batch of initial apexes over the course (snapshots in force by stride).
+
+    Stride `k` of every run is one jitted `step` (vmapped) against the plan and true map of
+    the environment in force (`CoursePlans.index_at(k)`); run `i` draws its noise from
+    `fold_in(key(seed), i)`.
 
     Returns:
         dict of NumPy arrays: `code (n,)`, `steps (n,)`, `apexes (n, max_steps + 1, 3)`,
@@ -275,13 +241,13 @@ def run_reactive(cps: CoursePlans, padded: Padded, apex0, *, hopper: Hopper, noi
     """
     apex0 = np.atleast_2d(np.asarray(apex0, float))
     n = apex0.shape[0]
-    nb = _bucket(n, 8)
+    nb = bucket(n, 8)
     apex = jnp.asarray(np.concatenate([apex0, np.repeat(apex0[-1:], nb - n, 0)]))
     keys = jax.vmap(jax.random.fold_in, (None, 0))(jax.random.key(seed), jnp.arange(nb))
-    code = jnp.full(nb, RUNNING, jnp.int32)
+    code = jnp.full(nb, Result.RUNNING, jnp.int32)
     goal = jnp.asarray(cps.maps[0].goal)
     tol = jnp.asarray(goal_tolerance(hopper))
-    dist = disturbance(noise, hopper)
+    dist = course_disturbance(noise, hopper)
     apexes = np.full((nb, max_steps + 1, 3), np.nan)
     apexes[:, 0] = np.asarray(apex)
     feet = np.full((nb, max_steps, 2), np.nan)
@@ -297,11 +263,10 @@ def run_reactive(cps: CoursePlans, padded: Padded, apex0, *, hopper: Hopper, noi
         feet[:, k] = np.asarray(foot)
         used[:, k] = np.asarray(a)
         apexes[stepping, k + 1] = np.asarray(apex)[stepping]
-        if not np.any(np.asarray(code) == RUNNING):
+        if not np.any(np.asarray(code) == Result.RUNNING):
             break
-    code = np.asarray(code).copy()
-    at_goal = np.all(np.abs(np.asarray(apex) - np.asarray(goal)) <= np.asarray(tol), axis=1)
-    code[code == RUNNING] = np.where(at_goal[code == RUNNING], SUCCESS, 5)
+    config = _course_config(goal, tol, model, max_steps)
+    code = np.asarray(jax.vmap(final_code, (0, 0, None))(code, apex, config))
     return {"code": code[:n], "steps": steps[:n], "apexes": apexes[:n], "footholds": feet[:n],
             "policies": used[:n]}
 
@@ -321,7 +286,7 @@ def decision_ms(cps: CoursePlans, padded: Padded, apexes, hopper: Hopper,
 
 
 def executed_strides(result: dict, i: int, hopper: Hopper, wind: float = 0.0) -> list:
-    """Run `i` as a list of `{xs, zs, v, theta, t, x1, z1}` (SPEC section 15 keys).
+    """Run `i` as a list of `{xs, zs, v, theta, t, x1, z1}` (the MPPC result's `executed`).
 
     Stride `k`: `xs, zs` its foothold; `v, theta` the COM's liftoff speed and angle from
     the horizontal; `t` the flight from liftoff to the next touchdown (to the final apex
@@ -358,9 +323,3 @@ def first_descent(result: dict, i: int, hopper: Hopper) -> float:
         return 0.0
     return math.sqrt(max(2.0 * (ap[0][1] - ft[0][1] - float(hopper.rho0)) / float(hopper.g),
                          0.0))
-
-
-def result_name(code: int) -> str:
-    return "success" if code == SUCCESS else PARKOUR_FAILURES[int(code) - 1]
-
-

@@ -94,7 +94,7 @@ class Controller:
         return found, self.controls(apex, s, a, model), a
 
     def decide_slip(self, apex, n_candidates=SLIP_CANDIDATES):
-        """SLIP controls for one measured apex (mirrors `jaxhop._execute.decide_slip`).
+        """SLIP controls for one measured apex (mirrors `jaxhop._models.decide_slip`).
 
         The SLIP deadbeat for each of the `n_candidates` highest-priority matching policies,
         its stride predicted over the policy's foothold; the first in deployment order whose

@@ -1,0 +1,214 @@
+"""The hopping models a run can use: each one's stride and its reactive decision.
+
+`BHOP` strides with the BHop map (eqs 25-29) and decides with the BHop deadbeat on the
+first matching policy (Fig. 8); `SLIP` strides with the SLIP model (eqs 12-16, a diffrax
+solve) and decides with the SLIP deadbeat on the best SLIP-reachable match
+(`docs/decisions.md`, "SLIP on BHop plans"). Public functions take the names `"bhop"` and
+`"slip"` and convert them once with `model_for`.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._bhop import ascent, deadbeat_bhop, stance
+from ._errors import InputError
+from ._flight import COLLISION, OK, liftoff_clear, touchdown
+from ._params import Hopper
+from ._plan import PlanTables
+from ._policies import candidate_situated
+from ._terrain import Terrain
+
+
+def bhop_stride(apex, u, terrain: Terrain, hopper: Hopper, wind=0.0):
+    """One BHop stride on the terrain: descent, touchdown, stance, rise to the next apex.
+
+    Returns:
+        `(next_apex, code, foothold)`: `code` is `OK` or a failure; `foothold = (y, h)`.
+    """
+    code, block, _, y_foot, v_td = touchdown(apex, jnp.array([0.0, -hopper.rho0]), terrain,
+                                             hopper, wind)
+    h = terrain.heights[block]
+    y_lo, v_lo = stance(y_foot, v_td, u)
+    clear = liftoff_clear(y_foot, y_lo, v_lo, h, terrain, hopper, wind)
+    nxt = ascent(y_lo, v_lo, h, hopper, wind)
+    code = jnp.where(code == OK, jnp.where(clear, OK, COLLISION), code)
+    return nxt, code, jnp.stack([y_foot, h])
+
+
+_NO_MATCH = jnp.iinfo(jnp.int32).max
+
+
+def _match_positions(apex, tables: PlanTables, hopper: Hopper):
+    """Situated candidates near the apex and their deployment position (`_NO_MATCH` where
+    the domain does not contain the apex)."""
+    ids, inside = candidate_situated(apex, tables.table, tables.templates, tables.terrain,
+                                     hopper)
+    return ids, jnp.where(inside, tables.best_pos[ids], _NO_MATCH)
+
+
+def first_match(apex, tables: PlanTables, hopper: Hopper):
+    """The first deployed policy whose domain contains `apex`.
+
+    Only the first deployed instantiated policy of each situated policy can ever be the
+    first match (they share a domain), so the order reduces to `best_pos` per situated
+    policy; the situated candidates are those on the segment of the nominal touchdown.
+
+    Returns:
+        `(found, situated, instantiated)`.
+    """
+    ids, pos = _match_positions(apex, tables, hopper)
+    k = jnp.argmin(pos)
+    found = pos[k] < _NO_MATCH
+    return found, ids[k], tables.best_inst[ids[k]]
+
+
+def _in_domain(apexes, tables: PlanTables, hopper: Hopper):
+    return jax.vmap(lambda z: first_match(z, tables, hopper)[0])(apexes)
+
+
+_in_domain_jit = jax.jit(_in_domain)
+
+
+def in_global_domain(apexes, tables: PlanTables, hopper: Hopper) -> np.ndarray:
+    """Which apexes lie in the union of the deployed policies' domains."""
+    return np.asarray(_in_domain_jit(jnp.asarray(apexes, float), tables, hopper))
+
+
+def clip_to_template(u, tmpl):
+    """BHop controls within a template's limits; a non-finite deadbeat takes the upper ones."""
+    lo = jnp.stack([tmpl.dy_lo, tmpl.th_lo, tmpl.k_lo])
+    hi = jnp.stack([tmpl.dy_hi, tmpl.th_hi, tmpl.k_hi])
+    return jnp.clip(jnp.where(jnp.isfinite(u), u, hi), lo, hi)
+
+
+def decide_bhop(apex, tables: PlanTables, hopper: Hopper):
+    """BHop controls for one measured apex: first match, deadbeat to its goal (eqs 25-29),
+    clip to its template's limits.
+
+    Returns:
+        `(found, u, instantiated)`.
+    """
+    found, s, a = first_match(apex, tables, hopper)
+    nt = tables.templates.n
+    h = tables.table.centre[s // nt, 1]
+    u = deadbeat_bhop(apex, tables.goals[a], h, hopper)
+    return found, clip_to_template(u, tables.templates.row(s % nt)), a
+
+
+# SLIP decisions (docs/decisions.md, "SLIP on BHop plans"): the deadbeat is tried on the
+# first SLIP_CANDIDATES matching policies in deployment order; the first whose predicted
+# apex lands within SLIP_ACCEPT of its goal wins, else the smallest scaled miss.
+SLIP_CANDIDATES = 2
+SLIP_ACCEPT = (0.05, 0.05, 0.05)
+
+
+def decide_slip(apex, tables: PlanTables, hopper: Hopper, n_candidates: int = SLIP_CANDIDATES):
+    """SLIP controls for one measured apex: the deadbeat on the best SLIP-reachable match.
+
+    The BHop plan's domains and goals ignore what the SLIP stance cannot do (the paper's
+    eqs 35-37 only approximate it), so the goal of the first match may be out of one SLIP
+    stride's reach (e.g. stopping at the global goal from a foothold a few cm off). The
+    controller runs the SLIP deadbeat (eqs 12-16) for the `n_candidates` highest-priority
+    matching policies, predicts each stride over the policy's foothold height, and takes the
+    first in deployment order whose prediction lies within `SLIP_ACCEPT` of its goal; when
+    none does, the one with the smallest miss relative to `SLIP_ACCEPT`.
+
+    Returns:
+        `(found, u, instantiated)`.
+    """
+    from ._slip import slip_stride
+    from ._slip_deadbeat import SEARCH_TOL, deadbeat_slip
+
+    ids, pos = _match_positions(apex, tables, hopper)
+    neg, k = jax.lax.top_k(-pos, n_candidates)
+    valid = -neg < _NO_MATCH
+    sit = ids[k]
+    inst = tables.best_inst[sit]
+    goals = tables.goals[inst]
+    h = tables.table.centre[sit // tables.templates.n, 1]
+
+    def one(goal, h_):
+        u, ok = deadbeat_slip(apex, goal, h_, hopper, terrain=tables.terrain)
+        pred, code, _ = slip_stride(apex, u, tables.terrain, hopper, 0.0, SEARCH_TOL)
+        miss = jnp.max(jnp.abs(pred - goal) / jnp.asarray(SLIP_ACCEPT))
+        return u, jnp.where((code == OK) & jnp.all(jnp.isfinite(pred)), miss, jnp.inf)
+
+    u, miss = jax.vmap(one)(goals, h)
+    miss = jnp.where(valid, miss, jnp.inf)
+    good = miss <= 1.0
+    pick = jnp.where(jnp.any(good), jnp.argmax(good), jnp.argmin(miss))
+    # No candidate at all (outside every domain) or no completed stride: the first match.
+    pick = jnp.where(jnp.isfinite(miss[pick]), pick, 0)
+    return valid[0], u[pick], inst[pick]
+
+
+class Model(eqx.Module):
+    """A hopping model: its stride on a terrain and the reactive controller's decision.
+
+    Static (no traced leaves): a model selects code, so each one compiles its own run loop.
+    `chunk` is the batch size of a full vmapped chunk; `pooled` whether batches of runs go
+    through the lane pool by default (`jaxhop._pool`); `instant_stance` whether the stance
+    is instantaneous with the foot below the COM (BHop) rather than a compression of the
+    leg from and back to its rest length (SLIP), which is how figures redraw a run.
+    """
+
+    name: str = eqx.field(static=True)
+    chunk: int = eqx.field(static=True)
+    pooled: bool = eqx.field(static=True)
+    instant_stance: bool = eqx.field(static=True)
+
+    def stride(self, apex, u, terrain: Terrain, hopper: Hopper, wind=0.0, energy=None):
+        """One stride: `(next_apex, code, foothold)`."""
+        raise NotImplementedError
+
+    def decide(self, apex, tables: PlanTables, hopper: Hopper):
+        """Controls for one measured apex: `(found, u, instantiated)`."""
+        raise NotImplementedError
+
+
+class _BHop(Model):
+    def stride(self, apex, u, terrain, hopper, wind=0.0, energy=None):
+        return bhop_stride(apex, u, terrain, hopper, wind)
+
+    def decide(self, apex, tables, hopper):
+        return decide_bhop(apex, tables, hopper)
+
+
+class _Slip(Model):
+    def stride(self, apex, u, terrain, hopper, wind=0.0, energy=None):
+        from ._slip import slip_stride
+
+        return slip_stride(apex, u, terrain, hopper, wind, energy=energy)
+
+    def decide(self, apex, tables, hopper):
+        return decide_slip(apex, tables, hopper)
+
+
+# SLIP strides cost a deadbeat solve per lane and run lengths vary more (a vmapped while loop
+# runs until the chunk's longest run ends), so SLIP batches use smaller chunks and the pool.
+BHOP = _BHop("bhop", chunk=256, pooled=False, instant_stance=True)
+SLIP = _Slip("slip", chunk=32, pooled=True, instant_stance=False)
+MODELS = {m.name: m for m in (BHOP, SLIP)}
+
+
+def model_for(model: str | Model) -> Model:
+    """The `Model` of a name (`"bhop"`, `"slip"`); a `Model` is returned as it is."""
+    if isinstance(model, Model):
+        return model
+    if model not in MODELS:
+        raise InputError(f"model must be one of {', '.join(MODELS)}, got {model!r}")
+    return MODELS[model]
+
+
+def decide(apex, tables: PlanTables, hopper: Hopper, model: str | Model = "bhop"):
+    """Controls for one measured apex with the model's controller: `(found, u, instantiated)`.
+
+    `"bhop"`: BHop deadbeat (eqs 25-29) clipped to the template's limits; `"slip"`: the
+    position-aware SLIP deadbeat (eqs 12-16) within the SLIP limits.
+    """
+    return model_for(model).decide(apex, tables, hopper)
+

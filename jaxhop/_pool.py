@@ -1,0 +1,101 @@
+"""SLIP runs: a pool of lanes refilled between strides (`docs/decisions.md`, "SLIP runs: a
+lane pool instead of vmapped chunks").
+
+A vmapped while loop runs until the longest run of its chunk ends: with SLIP strides (a
+deadbeat solve each) a chunk holding one run that loops to max_steps costs 60 strides per
+lane where most runs need about 12. So SLIP runs go through a pool instead: every device
+steps `POOL_LANES` runs by one stride (`run_step`, vmapped), the host retires the runs
+that ended and puts the next ones in their lanes (one host thread per device, one shared
+queue). Lanes with nothing to run repeat a live run of their device (same cost, results
+discarded). The lane count is fixed, so one compilation per device serves every sweep.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections import deque
+from concurrent.futures import ThreadPoolExecutor
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._runloop import RunConfig, World, run_init, run_live, run_result, run_step
+
+POOL_LANES = 8
+
+
+def _pool_step(carry, fresh, apex0, index, key, tables, true_terrain, hopper, disturbance,
+               config):
+    # Lanes marked `fresh` start their run here (`run_init` from `apex0`).
+    carry = jax.vmap(lambda c, f, a: jax.tree.map(lambda new, old: jnp.where(f, new, old),
+                                                  run_init(a, config), c))(carry, fresh, apex0)
+    keys = jax.vmap(jax.random.fold_in, (None, 0))(key, index)
+    world = World(tables, true_terrain, hopper, disturbance)
+    carry = jax.vmap(run_step, (0, 0, None, None))(carry, keys, world, config)
+    live = jax.vmap(lambda c: run_live(c, config))(carry)
+    final = jax.vmap(lambda c: run_result(c, config)[0])(carry)
+    return carry, live, final
+
+
+_pool_step_jit = jax.jit(_pool_step)
+
+
+def _lane_batch(pick, treedef, dev):
+    """The carries, run indices and `fresh` flags of the lanes, on `dev`."""
+    batch = [np.stack([p[1][i] for p in pick]) for i in range(treedef.num_leaves)]
+    index = np.asarray([p[0] for p in pick])
+    fresh = np.asarray([p[2] for p in pick])
+    return jax.tree_util.tree_unflatten(treedef, jax.device_put(batch, dev)), index, fresh
+
+
+def pool_runs(runs, apex0, key, consts, config: RunConfig, on_done, lanes=POOL_LANES):
+    """Run `runs` (indices into `apex0`) through the pool; `on_done(run, fields)` is called
+    as each ends, with `fields` in `RUN_FIELDS` order. `consts` are `(tables, true_terrain,
+    hopper, disturbance, config)`.
+
+    One host thread per device, all taking runs from one queue: the devices step (and, the
+    first time, compile) concurrently, and none waits for another.
+    """
+    # Placeholder leaves for a lane whose run starts in the next step (`fresh`).
+    blank, treedef = jax.tree_util.tree_flatten(jax.device_get(run_init(jnp.zeros(3), config)))
+    queue, lock, stop = deque(runs), threading.Lock(), threading.Event()
+
+    def worker(dev):
+        on_dev = jax.device_put((key,) + tuple(consts), dev)
+        active = []  # (run, carry leaves, fresh)
+        while not stop.is_set():
+            with lock:
+                while queue and len(active) < lanes:
+                    active.append((queue.popleft(), blank, True))
+            if not active:
+                return
+            # Spare lanes repeat live runs (same cost; their results are discarded).
+            pick = [active[j % len(active)] for j in range(lanes)]
+            carry, index, fresh = _lane_batch(pick, treedef, dev)
+            carry, live, final = _pool_step_jit(carry, *jax.device_put(
+                (fresh, apex0[index], index), dev), *on_dev)
+            leaves = [np.asarray(x) for x in jax.tree_util.tree_leaves(carry)]
+            live, final = np.asarray(live), np.asarray(final)
+            still, ended = [], []
+            for slot, (run, _, _) in enumerate(active):
+                mine = [x[slot] for x in leaves]
+                if live[slot]:
+                    still.append((run, mine, False))
+                else:
+                    _, _, steps, _, (apexes, feet, used) = jax.tree_util.tree_unflatten(
+                        treedef, mine)
+                    ended.append((run, (final[slot], steps, apexes, feet, used)))
+            active = still
+            with lock:
+                for run, fields in ended:
+                    on_done(run, fields)
+
+    devices = jax.local_devices()
+    with ThreadPoolExecutor(len(devices)) as ex:
+        futures = [ex.submit(worker, dev) for dev in devices]
+        try:
+            for f in futures:
+                f.result()
+        finally:
+            stop.set()

@@ -1,0 +1,198 @@
+"""The reactive run loop (Fig. 8): one step function and the vmapped loop around it.
+
+A step takes one apex of a run: the goal test, the disturbance (sensor noise on the
+measured apex, a landing error; section VI-C), the controller's decision on the measured
+apex (`Model.decide`), the model's stride on the true terrain with the wind
+(`Model.stride`) and the failure checks (a stride that does not finish, a touchdown in a
+forbidden interval of a parkour course). Its drivers: `run_one` (a while loop, vmapped by
+`_batch` for `run_batch`), the SLIP lane pool (`jaxhop._pool`), parkour runs across
+snapshots (`jaxhop.parkour._run`) and the open-loop replay of the figures
+(`jaxhop._replay`).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+
+from ._models import BHOP, Model, model_for
+from ._params import Disturbance, Hopper
+from ._plan import PlanTables
+from ._result import Result
+from ._terrain import Terrain
+
+
+class RunConfig(eqx.Module):
+    """Execution settings.
+
+    `landing`: draw a fourth uniform at every apex and shift the true apex by it times
+    `Disturbance.landing` before the descent (the parkour runs' draw); without it three
+    uniforms are drawn (sensor noise only) and landings are exact.
+    """
+
+    goal: jnp.ndarray
+    tolerance: jnp.ndarray = eqx.field(default_factory=lambda: jnp.full(3, 0.05))
+    max_steps: int = eqx.field(static=True, default=60)
+    model: Model = eqx.field(static=True, default=BHOP, converter=model_for)
+    energy_feedback: bool = eqx.field(static=True, default=False)
+    landing: bool = eqx.field(static=True, default=False)
+
+
+class World(eqx.Module):
+    """What a step runs against: the plan's tables (for the decision), the true terrain (for
+    the stride), the hopper, the disturbance and, on parkour courses, the forbidden
+    touchdown intervals `(n, 3)`: `[lo, hi, kind]` rows with `kind` a `Result` code."""
+
+    tables: PlanTables
+    terrain: Terrain
+    hopper: Hopper
+    disturbance: Disturbance
+    forbidden: jnp.ndarray | None = None
+
+
+class Step(NamedTuple):
+    """What one step did: the run's new code (`RUNNING` while it goes on), whether a stride
+    was taken (`stepping`) and completed (`ok`), its next apex, foothold and policy."""
+
+    code: jnp.ndarray
+    stepping: jnp.ndarray
+    ok: jnp.ndarray
+    next_apex: jnp.ndarray
+    foothold: jnp.ndarray
+    policy: jnp.ndarray
+
+
+def at_goal(apex, config: RunConfig):
+    return jnp.all(jnp.abs(apex - config.goal) <= config.tolerance)
+
+
+def draw_noise(key, k, config: RunConfig):
+    """The uniforms of apex `k` of a run (`fold_in(key, k)`): 3, or 4 with landings."""
+    return jax.random.uniform(jax.random.fold_in(key, k), (4 if config.landing else 3,),
+                              minval=-1.0, maxval=1.0)
+
+
+def forbidden_touchdown(foot, forbidden):
+    """The `Result` of a touchdown at `foot` inside a forbidden interval (0 where none); a
+    restricted area outranks a margin band."""
+    inside = ((foot[0] > forbidden[:, 0] + 1e-9) & (foot[0] < forbidden[:, 1] - 1e-9)
+              & (forbidden[:, 2] > 0))
+    kind = jnp.max(jnp.where(inside, forbidden[:, 2], 0.0)).astype(jnp.int32)
+    restricted = jnp.any(inside & (forbidden[:, 2] == Result.RESTRICTED))
+    return jnp.where(restricted, Result.RESTRICTED, kind)
+
+
+def stride_code(nxt, code, foot, world: World):
+    """A completed stride with a non-finite apex is a `SOLVER` failure; a touchdown in a
+    forbidden interval is that interval's failure."""
+    code = jnp.where(jnp.all(jnp.isfinite(nxt)) | (code != Result.SUCCESS), code, Result.SOLVER)
+    if world.forbidden is None:
+        return code
+    kind = forbidden_touchdown(foot, world.forbidden)
+    return jnp.where((code == Result.SUCCESS) & (kind > 0), kind, code)
+
+
+def step(apex, key, k, world: World, config: RunConfig, controller=None) -> Step:
+    """Apex `k` of a run: goal test, noise, decision, stride, failure checks.
+
+    `controller(measured, k, world) -> (found, u, policy)` replaces the reactive decision
+    (`config.model.decide`): the open-loop replay of a fixed plan (`jaxhop._replay`).
+    """
+    done = at_goal(apex, config)
+    noise = draw_noise(key, k, config)
+    dist = world.disturbance
+    measured = apex + noise[:3] * dist.sensor
+    if controller is None:
+        found, u, a = config.model.decide(measured, world.tables, world.hopper)
+    else:
+        found, u, a = controller(measured, k, world)
+    energy = None
+    if config.energy_feedback:
+        goal = world.tables.goals[a]
+        energy = world.hopper.m * (world.hopper.g * goal[1] + 0.5 * goal[2] ** 2)
+    true_apex = apex.at[0].add(noise[3] * dist.landing) if config.landing else apex
+    nxt, s_code, foot = config.model.stride(true_apex, u, world.terrain, world.hopper,
+                                            dist.wind, energy)
+    s_code = stride_code(nxt, s_code, foot, world)
+    code = jnp.where(done, Result.SUCCESS, jnp.where(
+        ~found, Result.OUTSIDE_DOMAIN, jnp.where(s_code == Result.SUCCESS, Result.RUNNING,
+                                                 s_code)))
+    stepping = ~done & found
+    return Step(code, stepping, stepping & (s_code == Result.SUCCESS), nxt, foot, a)
+
+
+def final_code(code, apex, config: RunConfig):
+    """A run still going when the loop stops: `SUCCESS` at the goal, else `MAX_STEPS`."""
+    return jnp.where(code == Result.RUNNING,
+                     jnp.where(at_goal(apex, config), Result.SUCCESS, Result.MAX_STEPS), code)
+
+
+# --- the recorded run: a carry with its buffers -------------------------------------------
+
+
+def run_init(apex0, config: RunConfig):
+    """The carry of a run at its first apex: `(apex, code, steps, k, buffers)`."""
+    n = config.max_steps
+    apex0 = jnp.asarray(apex0, float)
+    buffers = (jnp.full((n + 1, 3), jnp.nan).at[0].set(apex0), jnp.full((n, 2), jnp.nan),
+               jnp.full((n,), -1, jnp.int32))
+    return (apex0, jnp.asarray(Result.RUNNING), jnp.asarray(0, jnp.int32), jnp.asarray(0),
+            buffers)
+
+
+def run_live(carry, config: RunConfig):
+    _, code, _, k, _ = carry
+    return (code == Result.RUNNING) & (k < config.max_steps)
+
+
+def run_step(carry, key, world: World, config: RunConfig):
+    """`step` on a recorded run: the apex, footholds and policies go to its buffers."""
+    apex, code, steps, k, (apexes, feet, used) = carry
+    s = step(apex, key, k, world, config)
+    apexes = apexes.at[k + 1].set(jnp.where(s.ok, s.next_apex, jnp.nan))
+    feet = feet.at[k].set(jnp.where(s.stepping, s.foothold, jnp.nan))
+    used = used.at[k].set(jnp.where(s.stepping, s.policy, -1).astype(jnp.int32))
+    apex = jnp.where(s.ok, s.next_apex, apex)
+    return apex, s.code, steps + s.stepping.astype(jnp.int32), k + 1, (apexes, feet, used)
+
+
+def run_result(carry, config: RunConfig):
+    """`(code, steps, apexes, footholds, policies)` of a finished (or cut-off) run."""
+    apex, code, steps, _, (apexes, feet, used) = carry
+    return final_code(code, apex, config), steps, apexes, feet, used
+
+
+RUN_FIELDS = ("code", "steps", "apexes", "footholds", "policies")
+
+
+def run_one(apex0, key, tables: PlanTables, true_terrain: Terrain, hopper: Hopper,
+            disturbance: Disturbance, config: RunConfig):
+    """Run the reactive controller from one initial apex until success or failure.
+
+    The controller sees the apex plus sensor noise (fresh at every apex, from `key`); the
+    stride runs on `true_terrain` with the disturbance's wind.
+
+    Returns:
+        `(code, steps, apexes, footholds, policies)`: result code, strides taken, the
+        `(max_steps + 1, 3)` apex sequence (NaN after the end), `(max_steps, 2)` footholds and
+        the instantiated policy used at each stride (-1 after the end).
+    """
+    world = World(tables, true_terrain, hopper, disturbance)
+    # A while loop, not a scan: a batch stops when its longest run ends.
+    carry = jax.lax.while_loop(lambda c: run_live(c, config),
+                               lambda c: run_step(c, key, world, config),
+                               run_init(apex0, config))
+    return run_result(carry, config)
+
+
+def _batch(apex0, key, index, tables, true_terrain, hopper, disturbance, config):
+    # Run i's noise comes from fold_in(key, i): independent of batch size and chunking.
+    keys = jax.vmap(jax.random.fold_in, (None, 0))(key, index)
+    return jax.vmap(run_one, (0, 0, None, None, None, None, None))(
+        apex0, keys, tables, true_terrain, hopper, disturbance, config)
+
+
+batch_jit = jax.jit(_batch)
