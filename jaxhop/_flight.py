@@ -1,4 +1,4 @@
-"""Flight over the terrain: touchdown, stance clearance and failures (SPEC section 3).
+"""Flight over the terrain: touchdown, stance clearance and failures (sections IV-B and VI-C).
 
 Pure functions of one state; the terrain's blocks are vectorised inside. Time runs from the
 start of each ballistic arc. A point follows `p(t) = p0 + v t + a t^2 / 2` horizontally

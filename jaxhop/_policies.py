@@ -6,11 +6,12 @@ An instantiated policy is a situated policy `i` with a goal `Zg` chosen in
 boundary of the intersection, sampled on a grid over `(ydot, z)` where the `y` extent is an
 interval in closed form.
 
-Collision-free regions (SPEC section 5): the domain of a policy on segment `j` excludes apex
-states whose foot meets another block (top or wall) before reaching the segment, and a goal
-of policy `i` must be reachable without the COM meeting a block while it sweeps in stance and
-rises to the goal. For fixed `(ydot, z)` both conditions are bounds on `y` (derivation in
-docs/decisions.md), so the `y` extent stays an interval.
+Collision-free regions (`docs/decisions.md`, "Collision-free regions"): the domain of a
+policy on segment `j` excludes apex states whose foot meets another block (top or wall)
+before reaching the segment, and a goal of policy `i` must be reachable without the COM
+meeting a block while it sweeps in stance and rises to the goal. For fixed `(ydot, z)` both
+conditions are bounds on `y` (derivation in docs/decisions.md), so the `y` extent stays an
+interval.
 """
 
 from __future__ import annotations

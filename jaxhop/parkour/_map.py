@@ -1,8 +1,8 @@
-"""Parkour course -> terrain for the reactive planner (issue 8).
+"""Parkour course -> terrain for the reactive planner (`docs/parkour_reactive.md`).
 
-A course (SPEC section 14) is a flat floor at height 0 with cuboid obstacles, restricted
-floor areas and margins. The reactive planner of the 2012 paper works on a piecewise-
-constant terrain (SPEC section 2). `course_map` cuts the floor at every obstacle edge, at
+A course (`docs/mppc.md`, "Course data") is a flat floor at height 0 with cuboid obstacles,
+restricted floor areas and margins. The reactive planner of the 2012 paper works on a
+piecewise-constant terrain (section III). `course_map` cuts the floor at every obstacle edge, at
 every edge +- `Mh` and at every restricted-area boundary, so that each resulting block is
 either wholly landable or wholly forbidden:
 
@@ -12,7 +12,7 @@ either wholly landable or wholly forbidden:
 * the horizontal margin `Mh`: the bands within `Mh` of an obstacle edge (on the floor and
   on the top) are forbidden blocks too; a touchdown inside one is the failure `margin`;
 * floors are also cut on an absolute lattice (every `cell` segments, default 8): segments
-  are centred in their block (SPEC section 2), so without it an obstacle appearing in a
+  are centred in their block (section VI-A), so without it an obstacle appearing in a
   long stretch of floor would shift every segment of that stretch; and (`align=True`,
   the default) a floor block with one end on the lattice has its segments on the
   absolute grid `k 2l` from that end and its slack at the other (`_align`), so that
