@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import sys
 
 from . import _validate as v
 from ._errors import InputError
@@ -28,6 +29,14 @@ class Parser(argparse.ArgumentParser):
 
     def error(self, message):
         raise InputError(message.removeprefix("argument "))
+
+    def parse_known_args(self, args=None, namespace=None):
+        # argparse drops a value of "--" (`--seed=--`) and would hand on an empty list
+        for arg in sys.argv[1:] if args is None else args:
+            option, eq, value = str(arg).partition("=")
+            if eq and option.startswith("-") and value == "--":
+                raise InputError(f"{option}: expected a value, got '--'")
+        return super().parse_known_args(args, namespace)
 
 
 def _apex(text: str, field: str) -> list[float]:

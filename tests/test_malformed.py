@@ -517,7 +517,7 @@ def tripwires(monkeypatch):
     def trip(*args, **kwargs):
         raise Tripwire("validation came too late")
 
-    for module, name in ((jaxhop._plan, "build_plan"), (jaxhop._plan, "get_plan"),
+    for module, name in ((jaxhop._plan, "build_plan"), (jaxhop._cache, "get_plan"),
                          (jaxhop._execute, "sweep"), (jaxhop._execute, "run_batch"),
                          (jaxhop._execute, "bhop_stride"), (jaxhop._slip, "slip_stride"),
                          (jaxhop._demo, "demo"), (jaxhop.mppc._cli, "run_course")):
