@@ -16,7 +16,13 @@ from ._deploy import by_robustness, deploy
 from ._errors import InputError
 from ._graph import count_edges, situated_matrix
 from ._params import Hopper
-from ._policies import GOAL_Y_TOL, PairGrid, SituatedTable, candidate_pairs, situated_table
+from ._policies import (
+    PairGrid,
+    SituatedTable,
+    candidate_pairs,
+    goal_y_slack,
+    situated_table,
+)
 from ._progress import Progress
 from ._regions import goal_height_bounds, goal_position_bounds
 from ._stages import PROBE_HALF_WIDTH, SAFETY_WE, SAFETY_WG
@@ -257,7 +263,7 @@ def _goal_reach(goal, centre, templates: Templates, hopper: Hopper):
         lo, hi = goal_height_bounds(ydot, tmpl, hopper)
         zr = z - h - hopper.rho0
         ylo, yhi = goal_position_bounds(ydot, zr, tmpl, hopper)
-        tol = GOAL_Y_TOL
+        tol = goal_y_slack(y, py, templates.half_length)
         return lo, hi, ((hi >= lo) & (lo <= zr) & (zr <= hi) & (zr > 0)
                         & (y - py >= ylo - tol) & (y - py <= yhi + tol))
 

@@ -35,9 +35,15 @@ from ._regions import (
 from ._templates import Templates
 from ._terrain import Segments, Terrain
 
-#: Slack (m) of the goal-policy test in `y`: a global goal on a segment boundary lies on the
-#: edge of both neighbours' `Gf`, and `y - py` rounds either way (`goal_policy_margin`).
+#: Slack (m) of the goal-policy test in `y` for a global goal on a segment boundary
+#: (`|y - py| = l` within it): it lies on the edge of both neighbours' `Gf`, and `y - py`
+#: rounds either way (`goal_policy_margin`, `goal_y_slack`).
 GOAL_Y_TOL = 1e-9
+
+
+def goal_y_slack(y, py, half_length):
+    """`GOAL_Y_TOL` where `y` lies on an end of the segment centred at `py`, else 0."""
+    return jnp.where(jnp.abs(jnp.abs(y - py) - half_length) <= GOAL_Y_TOL, GOAL_Y_TOL, 0.0)
 
 
 class SituatedTable(eqx.Module):
@@ -330,8 +336,9 @@ def goal_policy_margin(goal, ti, seg_i, table: SituatedTable, templates: Templat
 
     The margin is the smallest distance, along `y`, `z` and `ydot`, from `goal` to the
     boundary of `Gf(i)` restricted to collision-free rises (steps of 1 cm / 1 cm/s). The goal
-    itself is tested with `GOAL_Y_TOL` of slack in `y`, so that a goal on the boundary
-    between two segments belongs to both (docs/decisions.md, "Goals on segment boundaries").
+    itself, where it lies on an end of the segment, is tested with `GOAL_Y_TOL` of slack in
+    `y`, so that a goal on the boundary between two segments belongs to both
+    (docs/decisions.md, "Goals on segment boundaries").
     """
     tmpl = templates.row(ti)
     py, h = table.centre[seg_i, 0], table.centre[seg_i, 1]
@@ -350,7 +357,7 @@ def goal_policy_margin(goal, ti, seg_i, table: SituatedTable, templates: Templat
     inside = jax.vmap(jax.vmap(jax.vmap(ok)))(probes)
     first_out = jnp.argmin(inside, axis=2)
     dist = jnp.where(jnp.all(inside, axis=2), steps[-1], steps[first_out] - 0.005)
-    reached = ok(goal, GOAL_Y_TOL)
+    reached = ok(goal, goal_y_slack(goal[0], py, templates.half_length))
     return reached, jnp.where(reached, jnp.min(dist), -jnp.inf)
 
 
