@@ -28,7 +28,9 @@ def _common(p, model=True, noise=False, models=("bhop",)):
                        help="slip: the SLIP model on the BHop plan with the SLIP adjustments "
                        "(eqs 35-37)")
     if noise:
-        p.add_argument("--noise", default="none", choices=("none", "wind", "sensor", "ground"))
+        p.add_argument("--noise", default="none", type=A.NOISE,
+                       help="none, wind, sensor or ground, or several joined by '+' "
+                       "(wind+sensor+ground)")
         p.add_argument("--seed", default="0", type=A.SEED, help="seed of every random draw")
         p.add_argument("--max-steps", default="60", type=A.MAX_STEPS_ARG)
         p.add_argument("--tolerance", default="0.05,0.05,0.05", type=A.TOLERANCE,
@@ -154,9 +156,11 @@ def _setting(args):
 
 def _prepare(args):
     """Terrain, plan (on the perceived map under ground noise) and run settings."""
+    from ._params import has_ground
+
     seed, max_steps, tol, disturbance, key = _setting(args)
     terrain, goal = A.terrain_and_goal(args)
-    planner_map = _perceived(terrain, seed) if args.noise == "ground" else terrain
+    planner_map = _perceived(terrain, seed) if has_ground(args.noise) else terrain
     plan = _plan(args, planner_map, goal)
     return terrain, plan, seed, max_steps, tol, disturbance, key
 
@@ -215,6 +219,7 @@ def cmd_run(args) -> int:
 
     from ._execute import run_batch
     from ._flight import RESULT_NAMES
+    from ._params import has_ground
 
     apex = args.apex
     if args.animate:
@@ -235,7 +240,7 @@ def cmd_run(args) -> int:
         from ._plot import runs_figure
 
         fig = runs_figure(terrain, [{k: v[0] for k, v in r.items()}], plan.goal,
-                          perceived=plan.terrain if args.noise == "ground" else None,
+                          perceived=plan.terrain if has_ground(args.noise) else None,
                           model=args.model, wind=float(disturbance.wind))
         _save(fig, args.plot)
     if args.animate:

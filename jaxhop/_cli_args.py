@@ -22,6 +22,8 @@ MAX_SPEED = 100.0  # |ydot| of an apex (m/s)
 MAX_POSITION = 1.0e4  # |y|, |z| of an apex (m)
 MAX_WIND = 100.0  # |horizontal acceleration| (m/s^2)
 MAX_TOLERANCE = 100.0
+#: `--noise` of `sweep` and `run`: one kind or several joined by `+` (`wind+sensor`).
+NOISE_KINDS = ("none", "wind", "sensor", "ground")
 
 
 class Parser(argparse.ArgumentParser):
@@ -46,6 +48,12 @@ def _apex(text: str, field: str) -> list[float]:
     return apex
 
 
+def _noise(text: str, field: str) -> str:
+    from ._params import check_noise
+
+    return check_noise(text, NOISE_KINDS, field)
+
+
 def _tolerance(text: str, field: str) -> list[float]:
     tol = v.bounded(v.numbers(text, field, 3), field, MAX_TOLERANCE)
     if min(tol) < 0:
@@ -57,6 +65,7 @@ def _tolerance(text: str, field: str) -> list[float]:
 SEED = v.arg_type(v.seed, "--seed")
 MAX_STEPS_ARG = v.arg_type(v.count, "--max-steps", MAX_STEPS)
 TOLERANCE = v.arg_type(_tolerance, "--tolerance")
+NOISE = v.arg_type(_noise, "--noise")
 GOAL = v.arg_type(v.numbers, "--goal", 3)
 APEX = v.arg_type(_apex, "--apex")
 CONTROLS = v.arg_type(v.numbers, "--controls", 3)
@@ -122,11 +131,26 @@ def check_step_args(args):
     y0, y1 = terrain.y_range
     if not y0 <= y <= y1:
         raise InputError(f"--apex: y = {y:g} lies off the map [{y0:g}, {y1:g}]")
-    under = [h for s, e, h in terrain.blocks() if s <= y <= e]
-    if under and not z > max(under) + 1.0:
-        raise InputError(f"--apex: z = {z:g} must exceed the ground under it "
-                         f"({max(under):g}) by more than the leg length 1 m")
+    foot_y, foot_z, at = foot_at_apex(apex, u, args.model)
+    under = [h for s, e, h in terrain.blocks() if s <= foot_y <= e]
+    if under and not foot_z > max(under):
+        raise InputError(f"--apex: z = {z:g} puts the foot{at} at height {foot_z:.4g}, not "
+                         f"above the ground under it ({max(under):g} at y = {foot_y:.4g})")
     return terrain
+
+
+def foot_at_apex(apex, u, model: str, rho0: float = 1.0):
+    """`(y, z, words)`: where the foot hangs at the apex, as the stride's descent starts.
+
+    SLIP: at `COM + rho0 (sin th_td, -cos th_td)` (`_slip.slip_stride`). BHop: straight
+    below the COM, `rho0` down (its controls act in stance only, `_models.bhop_stride`).
+    """
+    y, z, _ = apex
+    if model == "slip":
+        th = u[0]
+        return (y + rho0 * math.sin(th), z - rho0 * math.cos(th),
+                f" (leg {rho0:g} m at th_td = {th:g} rad)")
+    return y, z - rho0, f" (leg {rho0:g} m straight down)"
 
 
 def check_animate(path: str):

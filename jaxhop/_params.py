@@ -70,21 +70,51 @@ GROUND_HALF_WIDTH = 0.15
 LANDING_HALF_WIDTH = 0.05
 
 
-def check_noise(noise: str, kinds=NOISE_KINDS) -> str:
-    """`noise` if it names one of `kinds`; otherwise an `InputError` listing them."""
-    if noise not in kinds:
-        raise InputError(f"noise must be one of {', '.join(kinds)}, got {noise!r}")
+def noise_parts(noise: str, kinds=NOISE_KINDS, field: str = "noise") -> tuple[str, ...]:
+    """The kinds of a noise name: one of `kinds`, or several joined by `+` (`wind+sensor`).
+
+    Raises:
+        InputError: one line naming `field`: an unknown or empty kind, a kind given twice, or
+            `none` joined with others.
+    """
+    choices = f"choose from {', '.join(kinds)}, or several joined by '+', e.g. wind+sensor"
+    if not isinstance(noise, str):
+        raise InputError(f"{field}: invalid choice {noise!r} ({choices})")
+    parts = tuple(noise.split("+"))
+    for part in parts:
+        if part == "":
+            raise InputError(f"{field}: invalid choice {noise!r}, an empty kind ({choices})")
+        if part not in kinds:
+            where = f" in {noise!r}" if len(parts) > 1 else ""
+            raise InputError(f"{field}: invalid choice {part!r}{where} ({choices})")
+    if len(parts) > 1 and "none" in parts:
+        raise InputError(f"{field}: 'none' cannot be joined with other kinds, got {noise!r}")
+    twice = sorted({p for p in parts if parts.count(p) > 1})
+    if twice:
+        raise InputError(f"{field}: {twice[0]!r} is given twice in {noise!r}")
+    return parts
+
+
+def check_noise(noise: str, kinds=NOISE_KINDS, field: str = "noise") -> str:
+    """`noise` if it names one of `kinds` or several joined by `+` (`noise_parts`)."""
+    noise_parts(noise, kinds, field)
     return noise
 
 
-def disturbance_for(noise: str, hopper=None) -> Disturbance:
-    """The in-flight disturbance of a named noise kind (`ground` acts on the map instead).
+def has_ground(noise: str) -> bool:
+    """Whether `ground` noise (a perceived map, `perceived_terrain`) is among the kinds."""
+    return "ground" in noise_parts(noise)
 
-    With `hopper`, the paper's values (written for the 80 kg, 1 m hopper) are Froude-scaled
-    to it: wind with `g`, sensor noise on positions and landings with `rho0`, on speed with
-    `sqrt(g rho0)`. Without, they are used as they are.
+
+def disturbance_for(noise: str, hopper=None) -> Disturbance:
+    """The in-flight disturbance of a noise name (`ground` acts on the map instead).
+
+    Several kinds joined by `+` (`wind+sensor`) act together: each sets its own field of the
+    `Disturbance`. With `hopper`, the paper's values (written for the 80 kg, 1 m hopper) are
+    Froude-scaled to it: wind with `g`, sensor noise on positions and landings with `rho0`,
+    on speed with `sqrt(g rho0)`. Without, they are used as they are.
     """
-    check_noise(noise)
+    parts = noise_parts(noise)
     if hopper is None:
         length = velocity = 1.0
         wind = WIND_ACCEL
@@ -92,11 +122,12 @@ def disturbance_for(noise: str, hopper=None) -> Disturbance:
         f = froude_scales(hopper)
         length, velocity = f["length"], f["velocity"]
         wind = WIND_ACCEL * float(hopper.g) / REFERENCE_HOPPER[1]
-    if noise == "wind":
-        return Disturbance(wind=wind)
-    if noise == "sensor":
+    fields = {}
+    if "wind" in parts:
+        fields["wind"] = wind
+    if "sensor" in parts:
         y, z, v = SENSOR_HALF_WIDTH
-        return Disturbance(sensor=jnp.array([y * length, z * length, v * velocity]))
-    if noise == "landing":
-        return Disturbance(landing=LANDING_HALF_WIDTH * length)
-    return Disturbance()
+        fields["sensor"] = jnp.array([y * length, z * length, v * velocity])
+    if "landing" in parts:
+        fields["landing"] = LANDING_HALF_WIDTH * length
+    return Disturbance(**fields)

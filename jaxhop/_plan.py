@@ -6,6 +6,7 @@ import dataclasses
 import warnings
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 import scipy.sparse as sp
@@ -15,8 +16,15 @@ from ._deploy import by_robustness, deploy
 from ._errors import InputError
 from ._graph import count_edges, situated_matrix
 from ._params import Hopper
-from ._policies import PairGrid, SituatedTable, candidate_pairs, situated_table
+from ._policies import (
+    PairGrid,
+    SituatedTable,
+    candidate_pairs,
+    goal_y_slack,
+    situated_table,
+)
 from ._progress import Progress
+from ._regions import goal_height_bounds, goal_position_bounds
 from ._stages import PROBE_HALF_WIDTH, SAFETY_WE, SAFETY_WG
 from ._templates import Templates, paper_templates
 from ._terrain import Terrain, segments
@@ -131,13 +139,18 @@ def build_plan(
         The `Plan`.
 
     Raises:
-        InputError: no goal, or a goal that is not finite.
+        InputError: no goal, a goal that is not finite, or a goal that no situated policy
+            reaches (no goal policy; the message says why, `goal_refusal`).
     """
     laps = S.Laps()
     templates = paper_templates() if templates is None else templates
     hopper = Hopper() if hopper is None else hopper
     goal = _check_goal(terrain if goal is None else goal)
     lay = S.Layout(terrain, segments(terrain, templates.seg_length), templates, hopper)
+    g_ok, g_margin = S.goal_policies(lay, goal, np.arange(lay.n_sit), chunk=None)
+    goal_sit = np.nonzero(g_ok)[0]
+    if goal_sit.size == 0:
+        raise InputError(goal_refusal(terrain, goal, templates, hopper))
     rows, cols = candidate_pairs(lay.gf_world, lay.d_world)
     laps("boxes")
     n_pairs = rows.size
@@ -149,8 +162,6 @@ def build_plan(
         found, goals, margin, margin_d = S.instantiate(lay, lay.pair_args(rows, cols), grid,
                                                        bar)
     laps("instantiate")
-    g_ok, g_margin = S.goal_policies(lay, goal, np.arange(lay.n_sit), chunk=None)
-    goal_sit = np.nonzero(g_ok)[0]
     sit, tgt, all_goals, all_margin, dg, is_goal = S.instantiated(
         goal, goal_sit, g_margin[goal_sit], rows[found], cols[found], goals[found],
         margin[found], margin_d[found])
@@ -195,3 +206,68 @@ def _check_goal(goal_or_terrain) -> np.ndarray:
     if goal.shape != (3,) or not np.all(np.isfinite(goal)):
         raise InputError(f"goal: expected three finite numbers y,z,ydot, got {goal_or_terrain!r}")
     return goal
+
+
+def goal_refusal(terrain: Terrain, goal, templates: Templates, hopper: Hopper) -> str:
+    """Why no situated policy reaches `goal` (a plan without goal policy), in one line.
+
+    In order: off the map; over a hole; not a leg length above the block under it; a speed
+    no template's `Gf` holds; a height outside every template's `Gf` at that speed
+    (`goal_height_bounds`); no segment within a stride's reach (`goal_position_bounds`);
+    else the rise to the goal meets a block (`ascent_y_bounds`).
+    """
+    y, z, ydot = (float(x) for x in goal)
+    where = f"goal ({y:g}, {z:g}, {ydot:g}) has no goal policy:"
+    y0, y1 = terrain.y_range
+    if not y0 <= y <= y1:
+        return f"{where} it lies off the map [{y0:g}, {y1:g}]"
+    blocks = terrain.blocks()
+    under = [b for b in blocks if b[0] <= y <= b[1]]
+    if not under:
+        left = max(e for _, e, _ in blocks if e < y)
+        right = min(s for s, _, _ in blocks if s > y)
+        return (f"{where} it lies over the hole {left:g}-{right:g} m, and no stride from a "
+                "block beside it ends there")
+    s, e, h = max(under, key=lambda b: b[2])
+    block = f"the block under it ({s:g}-{e:g} m, height {h:g} m)"
+    rho0 = float(hopper.rho0)
+    if z - h - rho0 <= 0:
+        return f"{where} it is not a leg length ({rho0:g} m) above {block}"
+    lo, hi, _ = _goal_reach(goal, np.array([[y, h]]), templates, hopper)
+    zr, lo, hi = z - h - rho0, lo[0], hi[0]
+    speed_ok = hi >= lo
+    if not speed_ok.any():
+        return f"{where} no template's feasible goal set holds the speed {ydot:g} m/s"
+    if not np.any(speed_ok & (lo <= zr) & (zr <= hi)):
+        energy = 0.5 * float(hopper.m) * ydot**2 + float(hopper.m * hopper.g) * zr
+        return (f"{where} its height {zr:.3g} m above {block} (apex energy {energy:.4g} J) "
+                f"lies outside every template's goal heights at {ydot:g} m/s "
+                f"({lo[speed_ok].min():.3g}-{hi[speed_ok].max():.3g} m)")
+    centre = np.asarray(segments(terrain, templates.seg_length).centre)
+    reach = _goal_reach(goal, centre, templates, hopper)[2].any(axis=1)
+    if not reach.any():
+        return (f"{where} no ground segment ({templates.seg_length:g} m) lies within a "
+                f"stride's reach of it (on {block} or elsewhere)")
+    return (f"{where} every stride that ends there meets a block on its way up (from the "
+            f"segments at y = {', '.join(f'{c:g}' for c in centre[reach, 0][:4])})")
+
+
+def _goal_reach(goal, centre, templates: Templates, hopper: Hopper):
+    """`(zr_lo, zr_hi, reach)`, each `(n_seg, n_templates)`: `Gf`'s height interval at the
+    goal's speed, and whether `Gf` of each template on each segment `(py, h)` holds the goal
+    (collision clauses aside)."""
+    y, z, ydot = (jnp.asarray(float(x)) for x in goal)
+
+    def one(t, py, h):
+        tmpl = templates.row(t)
+        lo, hi = goal_height_bounds(ydot, tmpl, hopper)
+        zr = z - h - hopper.rho0
+        ylo, yhi = goal_position_bounds(ydot, zr, tmpl, hopper)
+        tol = goal_y_slack(y, py, templates.half_length)
+        return lo, hi, ((hi >= lo) & (lo <= zr) & (zr <= hi) & (zr > 0)
+                        & (y - py >= ylo - tol) & (y - py <= yhi + tol))
+
+    per_seg = jax.vmap(one, (0, None, None))
+    out = jax.vmap(per_seg, (None, 0, 0))(jnp.arange(templates.n), jnp.asarray(centre[:, 0]),
+                                          jnp.asarray(centre[:, 1]))
+    return tuple(np.asarray(x) for x in out)

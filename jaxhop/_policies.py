@@ -35,6 +35,16 @@ from ._regions import (
 from ._templates import Templates
 from ._terrain import Segments, Terrain
 
+#: Slack (m) of the goal-policy test in `y` for a global goal on a segment boundary
+#: (`|y - py| = l` within it): it lies on the edge of both neighbours' `Gf`, and `y - py`
+#: rounds either way (`goal_policy_margin`, `goal_y_slack`).
+GOAL_Y_TOL = 1e-9
+
+
+def goal_y_slack(y, py, half_length):
+    """`GOAL_Y_TOL` where `y` lies on an end of the segment centred at `py`, else 0."""
+    return jnp.where(jnp.abs(jnp.abs(y - py) - half_length) <= GOAL_Y_TOL, GOAL_Y_TOL, 0.0)
+
 
 class SituatedTable(eqx.Module):
     """Arrays that locate situated policies on a terrain (for jitted lookups).
@@ -325,16 +335,19 @@ def goal_policy_margin(goal, ti, seg_i, table: SituatedTable, templates: Templat
     """Whether situated `(ti, seg_i)` can reach the global goal, and the goal's margin.
 
     The margin is the smallest distance, along `y`, `z` and `ydot`, from `goal` to the
-    boundary of `Gf(i)` restricted to collision-free rises (steps of 1 cm / 1 cm/s).
+    boundary of `Gf(i)` restricted to collision-free rises (steps of 1 cm / 1 cm/s). The goal
+    itself, where it lies on an end of the segment, is tested with `GOAL_Y_TOL` of slack in
+    `y`, so that a goal on the boundary between two segments belongs to both
+    (docs/decisions.md, "Goals on segment boundaries").
     """
     tmpl = templates.row(ti)
     py, h = table.centre[seg_i, 0], table.centre[seg_i, 1]
     b = table.seg_block[seg_i]
 
-    def ok(g):
+    def ok(g, y_tol=0.0):
         rel = jnp.stack([g[0] - py, g[1] - h - hopper.rho0, g[2]])
         lo, hi = ascent_y_bounds(g[2], g[1], b, terrain, hopper)
-        return feasible_goal_contains(rel, tmpl, hopper) & (g[0] > lo) & (g[0] < hi)
+        return feasible_goal_contains(rel, tmpl, hopper, y_tol) & (g[0] > lo) & (g[0] < hi)
 
     steps = 0.01 * jnp.arange(1, n_steps + 1)
     eye = jnp.eye(3)
@@ -344,7 +357,8 @@ def goal_policy_margin(goal, ti, seg_i, table: SituatedTable, templates: Templat
     inside = jax.vmap(jax.vmap(jax.vmap(ok)))(probes)
     first_out = jnp.argmin(inside, axis=2)
     dist = jnp.where(jnp.all(inside, axis=2), steps[-1], steps[first_out] - 0.005)
-    return ok(goal), jnp.where(ok(goal), jnp.min(dist), -jnp.inf)
+    reached = ok(goal, goal_y_slack(goal[0], py, templates.half_length))
+    return reached, jnp.where(reached, jnp.min(dist), -jnp.inf)
 
 
 def goal_robustness(goal, table: SituatedTable, templates: Templates, terrain: Terrain,

@@ -120,12 +120,18 @@ def goal_position_bounds(ydot, zr, tmpl: Templates, hopper: Hopper):
     return shift + l + dy_lo, shift - l + dy_hi
 
 
-def feasible_goal_contains(z_rel, tmpl: Templates, hopper: Hopper):
-    """`Z' in Gf(Phi)` by the closed form, relative coordinates."""
+def feasible_goal_contains(z_rel, tmpl: Templates, hopper: Hopper, y_tol=0.0):
+    """`Z' in Gf(Phi)` by the closed form, relative coordinates.
+
+    `y_tol` widens the `y` interval on both sides (m): a goal on the boundary between two
+    segments lies on the edge of both their `Gf`s, where rounding in `y - py` could put it
+    just outside each (docs/decisions.md, "Goals on segment boundaries").
+    """
     y_rel, zr, ydot = z_rel
     v_star = jnp.stack([ydot, safe_sqrt(2.0 * hopper.g * zr)])
     lo, hi = goal_position_bounds(ydot, zr, tmpl, hopper)
-    return goal_velocity_ok(v_star, tmpl, hopper) & (y_rel >= lo) & (y_rel <= hi) & (zr > 0)
+    return (goal_velocity_ok(v_star, tmpl, hopper) & (y_rel >= lo - y_tol)
+            & (y_rel <= hi + y_tol) & (zr > 0))
 
 
 def _liftoff_speed_bounds(c, v, tmpl: Templates):

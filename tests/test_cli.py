@@ -1,4 +1,5 @@
 import json
+import math
 
 import pytest
 
@@ -99,3 +100,125 @@ def test_run_animate_writes_a_gif(tmp_path, monkeypatch, capsys):
     assert err.startswith("jaxhop: error: --animate:") and ".gif or .mp4" in err
     assert len(err.splitlines()) == 1
     assert not (tmp_path / "run.avi").exists()
+
+
+# --- the foot's height in `jaxhop step` ------------------------------------------------------
+
+
+def _step_args(model, apex, controls, terrain=None):
+    import argparse
+
+    return argparse.Namespace(model=model, apex=list(apex), controls=list(controls),
+                              terrain=terrain)
+
+
+def test_step_accepts_a_slip_apex_whose_foot_is_above_the_ground(tmp_path):
+    """0.38 rad at z = 1.0: the leg reaches down only 1 cos(0.38) = 0.929 m."""
+    from jaxhop._cli_args import check_step_args
+
+    assert check_step_args(_step_args("slip", (0, 1.0, 5.0), (0.38, 20000, 20000))) is not None
+    out = tmp_path / "s.json"
+    assert main(["step", "--model", "slip", "--apex", "0,1.0,5.0", "--controls",
+                 "0.38,20000,20000", "--json", str(out)]) == 0
+    assert json.loads(out.read_text())["apex"] == [0.0, 1.0, 5.0]
+
+
+@pytest.mark.parametrize("th", [0.0, 0.2, -0.38, 0.7])
+def test_step_apex_check_is_the_slip_descent_reaching_the_ground(th):
+    """Accepted iff the SLIP descent starts with the foot above the ground (its own test,
+    `flat_touchdown`), on either side of the threshold."""
+    import jax.numpy as jnp
+
+    from jaxhop._cli_args import check_step_args
+    from jaxhop._errors import InputError
+    from jaxhop._params import Hopper
+    from jaxhop._slip import flat_touchdown
+
+    for dz in (-1e-3, 1e-3):
+        z = math.cos(th) + dz
+        reached = bool(flat_touchdown(jnp.array([0.0, z, 1.0]), th, 0.0, Hopper())[2])
+        args = _step_args("slip", (0.0, z, 1.0), (th, 20000, 20000))
+        if reached:
+            check_step_args(args)
+        else:
+            with pytest.raises(InputError, match="puts the foot"):
+                check_step_args(args)
+        assert reached == (dz > 0)
+
+
+def test_step_foot_under_a_block_edge_is_checked_where_the_foot_is(tmp_path):
+    """A SLIP foot swung over a higher block is checked against that block's top."""
+    from jaxhop._cli_args import check_step_args
+    from jaxhop._errors import InputError
+
+    path = tmp_path / "t.json"
+    path.write_text('{"blocks": [{"start": -2, "end": 0.2, "height": 0}, '
+                    '{"start": 0.2, "end": 2, "height": 0.3}]}')
+    th = 0.38  # foot at y = sin(0.38) = 0.371, over the 0.3 m block
+    with pytest.raises(InputError, match="ground under it \\(0.3"):
+        check_step_args(_step_args("slip", (0.0, 1.2, 1.0), (th, 2e4, 2e4), str(path)))
+    check_step_args(_step_args("slip", (0.0, 1.3, 1.0), (th, 2e4, 2e4), str(path)))
+    check_step_args(_step_args("slip", (0.0, 1.2, 1.0), (-th, 2e4, 2e4), str(path)))
+    # BHop: the foot hangs straight down at the apex.
+    with pytest.raises(InputError, match="puts the foot"):
+        check_step_args(_step_args("bhop", (0.0, 1.0, 1.0), (0.1, 0.05, 1.2)))
+    check_step_args(_step_args("bhop", (0.0, 1.001, 1.0), (0.1, 0.05, 1.2)))
+
+
+# --- combined disturbances -------------------------------------------------------------------
+
+
+def test_combined_noise_is_the_fieldwise_combination():
+    import numpy as np
+
+    from jaxhop._params import Hopper, disturbance_for, has_ground
+
+    for hopper in (None, Hopper(m=30.0, g=5.0, rho0=0.5)):
+        wind, sensor = disturbance_for("wind", hopper), disturbance_for("sensor", hopper)
+        landing = disturbance_for("landing", hopper)
+        both = disturbance_for("wind+sensor", hopper)
+        assert both.wind == wind.wind != 0 and both.landing == 0
+        np.testing.assert_array_equal(both.sensor, sensor.sensor)
+        three = disturbance_for("landing+sensor+wind", hopper)
+        assert three.wind == wind.wind and three.landing == landing.landing != 0
+        np.testing.assert_array_equal(three.sensor, sensor.sensor)
+        ground = disturbance_for("wind+sensor+ground", hopper)
+        assert ground.wind == wind.wind and ground.landing == 0
+        np.testing.assert_array_equal(ground.sensor, sensor.sensor)
+    assert has_ground("wind+sensor+ground") and has_ground("ground")
+    assert not has_ground("wind+sensor") and not has_ground("none")
+
+
+@pytest.mark.parametrize("noise, needle", [
+    ("none+wind", "'none' cannot be joined"), ("wind+sensor+wind", "'wind' is given twice"),
+    ("wind+", "an empty kind"), ("+sensor", "an empty kind"), ("wind++sensor", "an empty kind"),
+    ("wind+storm", "invalid choice 'storm' in 'wind+storm'"), ("", "an empty kind"),
+    ("Wind", "invalid choice 'Wind'"),
+])
+def test_bad_noise_combinations_are_refused(capsys, noise, needle):
+    from jaxhop._errors import InputError
+    from jaxhop._params import disturbance_for
+
+    with pytest.raises(InputError, match="noise: "):
+        disturbance_for(noise)
+    for argv in (["sweep", "--terrain", "flat"], ["run", "--terrain", "flat"],
+                 ["parkour", "--course", "mppc-sim-1", "--planner", "reactive"]):
+        assert main(argv + ["--noise", noise]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and err.startswith("jaxhop: error: --noise: ")
+        assert needle in err
+
+
+def test_noise_lists_parse_on_every_command():
+    from jaxhop._cli import build_parser
+
+    parser = build_parser()
+    for cmd in (["sweep"], ["run"]):
+        for noise in ("wind+sensor", "wind+sensor+ground", "ground+wind", "none"):
+            assert parser.parse_args(cmd + ["--noise", noise]).noise == noise
+    pk = ["parkour", "--course", "mppc-sim-1", "--noise"]
+    assert parser.parse_args(pk + ["wind+sensor+landing"]).noise == "wind+sensor+landing"
+    with pytest.raises(Exception, match="invalid choice 'ground'"):
+        parser.parse_args(pk + ["wind+ground"])
+    with pytest.raises(Exception, match="invalid choice 'landing'"):
+        parser.parse_args(["sweep", "--noise", "landing+wind"])

@@ -450,7 +450,10 @@ def _cli_cases(rng: random.Random, tmp) -> list[Case]:
             for t in ("-0.1,0.05,0.05", "0.05,-1e-9,0.05", "1e3,0.05,0.05"):
                 add("bad tolerance", _with(ctx(name), "--tolerance", t), "--tolerance")
     for name in ("step-bhop", "step-slip"):
-        for a in ("0.2,0.5,0.8", "0.2,-3,0.8", "0.2,1.0,0.8", "0.2,1e5,0.8", "0.2,1.4,1e3"):
+        # A foot at or below the ground: at 1.0 the BHop foot (straight down) touches it;
+        # the SLIP foot at th_td = 0.15 hangs 1.1 cm higher, so 0.98 puts it below.
+        low = "0.2,1.0,0.8" if name == "step-bhop" else "0.2,0.98,0.8"
+        for a in ("0.2,0.5,0.8", "0.2,-3,0.8", low, "0.2,1e5,0.8", "0.2,1.4,1e3"):
             add("bad apex", _with(ctx(name), "--apex", a), "--apex")
         a = "50,1.4,0.8"
         add("bad apex", _with(ctx(name), "--apex", a) + ["--terrain", "flat"], "--apex")

@@ -12,12 +12,19 @@ import sys
 
 from .. import _validate as v
 from .._errors import InputError
+from .._params import check_noise
 from ..mppc._cli import check_grid, run_mppc, write_json
 from ..mppc._course import list_courses, load_course
 from ..mppc._plan import Settings
 
 MAX_RUNS = 4096
 PLANNERS = ("mppc", "reactive")
+#: `--noise` kinds on a course (`ground` has no meaning there), joined by `+` if several.
+NOISE_KINDS = ("none", "wind", "sensor", "landing")
+
+
+def _noise(text: str, field: str) -> str:
+    return check_noise(text, NOISE_KINDS, field)
 
 
 def add_parser(subparsers):
@@ -42,8 +49,9 @@ def add_parser(subparsers):
                         "(docs/parkour_reactive.md)")
     p.add_argument("--model", default="bhop", choices=["bhop", "slip"],
                    help="reactive planner: the simulated model (default bhop)")
-    p.add_argument("--noise", default="none", choices=["none", "wind", "sensor", "landing"],
-                   help="disturbance (Froude-scaled; docs/parkour_reactive.md)")
+    p.add_argument("--noise", default="none", type=v.arg_type(_noise, "--noise"),
+                   help="disturbance: none, wind, sensor or landing, or several joined by "
+                   "'+' (wind+sensor); Froude-scaled, docs/parkour_reactive.md")
     p.add_argument("--seed", type=v.arg_type(v.seed, "--seed"), default=0,
                    help="seed of initial states and noise")
     p.add_argument("--runs", type=v.arg_type(v.count, "--runs", MAX_RUNS), default=1,

@@ -242,6 +242,11 @@ def pair_goal(sit: Situation, ti, seg_i, tj, seg_j, box, n_v=16, n_z=16, margins
     return True, np.array([y_g, zs[b], vs[a]]), float(margin[a, b]), float(margin_d)
 
 
+#: Slack (m) in `y` of the goal itself where it lies on an end of the segment: a goal on a
+#: segment boundary belongs to both neighbouring segments (mirrors `_policies.GOAL_Y_TOL`).
+GOAL_Y_TOL = 1e-9
+
+
 def goal_policy_margin(sit: Situation, goal, ti, seg_i, n_steps=50):
     """Whether situated `(ti, seg_i)` reaches the global goal, and the goal's margin to the
     boundary of its (collision-free) Gf along each axis in 1 cm steps."""
@@ -253,7 +258,10 @@ def goal_policy_margin(sit: Situation, goal, ti, seg_i, n_steps=50):
     probes = goal + signed * np.eye(3)[:, None, None, :]  # (axis, sign, step, 3)
     pts = np.concatenate([np.asarray(goal, float)[None], probes.reshape(-1, 3)])
     lo, hi = sit.ascent_y_bounds(pts[:, 2], pts[:, 1], block)
-    ok = (reg.feasible_goal_contains(pts[:, 0] - py, pts[:, 1] - h - hp.rho0, pts[:, 2])
+    on_end = abs(abs(pts[0, 0] - py) - sit.templates.half_length) <= GOAL_Y_TOL
+    y_tol = np.where((np.arange(pts.shape[0]) == 0) & on_end, GOAL_Y_TOL, 0.0)
+    ok = (reg.feasible_goal_contains(pts[:, 0] - py, pts[:, 1] - h - hp.rho0, pts[:, 2],
+                                     y_tol)
           & (pts[:, 0] > lo) & (pts[:, 0] < hi))
     if not ok[0]:
         return False, -INF

@@ -137,11 +137,12 @@ class TemplateRegions:
         ok = (th >= t["th_lo"]) & (th <= t["th_hi"]) & (k >= t["k_lo"]) & (k <= t["k_hi"])
         return np.all(ok, axis=-1) & (zdot > 0)
 
-    def feasible_goal_contains(self, y_rel, zr, ydot):
-        """`Z' in Gf(Phi)` by the closed form (broadcasts)."""
+    def feasible_goal_contains(self, y_rel, zr, ydot, y_tol=0.0):
+        """`Z' in Gf(Phi)` by the closed form (broadcasts); `y_tol` widens the `y` interval."""
         zdot = safe_sqrt(2.0 * self.hopper.g * zr)
         lo, hi = self.goal_position_bounds(ydot, zr)
-        return self.goal_velocity_ok(ydot, zdot) & (y_rel >= lo) & (y_rel <= hi) & (zr > 0)
+        return (self.goal_velocity_ok(ydot, zdot) & (y_rel >= lo - y_tol)
+                & (y_rel <= hi + y_tol) & (zr > 0))
 
 
 def linspace(start: float, stop: float, num: int) -> np.ndarray:
