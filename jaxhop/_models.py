@@ -14,7 +14,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._bhop import ascent, deadbeat_bhop, stance
+from ._bhop import ascent, deadbeat_bhop, safe_sqrt, stance
 from ._errors import InputError
 from ._flight import COLLISION, OK, liftoff_clear, touchdown
 from ._params import Hopper
@@ -44,58 +44,74 @@ _NO_MATCH = jnp.iinfo(jnp.int32).max
 
 # Recovery outside the domains (docs/decisions.md, "Adaptive controller"): the nearest
 # deployed domain is taken when it lies within RECOVERY_DISTANCE (scaled, see
-# `domain_distance`) of the measured apex.
-RECOVERY_DISTANCE = 0.5
+# `domain_distance`) of the measured apex: at most one range width outside on the worst
+# axis (the paper's sensor noise, +-0.05 m in z, is +-39 J, the narrowest energy band 40 J).
+RECOVERY_DISTANCE = 1.0
 
 
 def domain_distance(apex, ids, tables: PlanTables, hopper: Hopper):
     """Scaled distance from `apex` to the domains of situated policies `ids` (eqs 38-41).
 
     Per axis, how far the apex lies outside the domain's range in units of that range:
-    the nominal touchdown `y` against the segment `[-l, l]` (over `2 l`), `ydot` against
-    `[v_lo, v_hi]` (over its width), the energy over the segment's virtual ground against
-    `[e_lo, e_hi]` (over its width); the distance is the largest of the three (0 inside
-    the domain's ranges). A policy on another block than the nominal touchdown, or a
-    touchdown that fails (collision, hole, off the map), is at `inf`.
+    the touchdown `y` of a ballistic fall to the segment's height against the segment
+    `[-l, l]` (over `2 l`), `ydot` against `[v_lo, v_hi]` (over its width), the energy over
+    the segment's virtual ground against `[e_lo, e_hi]` (over its width); the distance is
+    the largest of the three (0 inside the domain's ranges). A segment the apex is not
+    above (`z <= h + rho0`) is at `inf`.
     """
     tm = tables.templates
-    lead = foot_lead(apex[2], tm)
-    code, block, _, y_foot, _ = touchdown(apex, jnp.stack([lead, -hopper.rho0]),
-                                          tables.terrain, hopper)
     seg, t = ids // tm.n, ids % tm.n
     py, h = tables.table.centre[seg, 0], tables.table.centre[seg, 1]
+    zr = apex[1] - h - hopper.rho0
+    y_td = apex[0] + apex[2] * safe_sqrt(2.0 * zr / hopper.g) + foot_lead(apex[2], tm)
     l = tm.half_length
 
     def beyond(x, lo, hi):
         return jnp.maximum(jnp.maximum(lo - x, x - hi), 0.0) / (hi - lo)
 
-    energy = 0.5 * hopper.m * apex[2] ** 2 + hopper.m * hopper.g * (apex[1] - h - hopper.rho0)
-    d = jnp.maximum(jnp.maximum(beyond(y_foot - py, -l, l), beyond(apex[2], tm.v_lo[t],
-                                                                      tm.v_hi[t])),
+    energy = 0.5 * hopper.m * apex[2] ** 2 + hopper.m * hopper.g * zr
+    d = jnp.maximum(jnp.maximum(beyond(y_td - py, -l, l), beyond(apex[2], tm.v_lo[t],
+                                                                    tm.v_hi[t])),
                     beyond(energy, tm.e_lo[t], tm.e_hi[t]))
-    same = (tables.table.seg_block[seg] == block) & (code == OK) & (apex[1] - h > hopper.rho0)
-    return jnp.where(same, d, jnp.inf)
+    return jnp.where(zr > 0, d, jnp.inf)
+
+
+def recovery_candidates(apex, tables: PlanTables, hopper: Hopper):
+    """Situated ids a recovery considers: on every block, the segment nearest to where the
+    foot falls through the block's top height (all templates)."""
+    tb, tm = tables.table, tables.templates
+    h = tables.terrain.heights
+    t_fall = safe_sqrt(2.0 * (apex[1] - h - hopper.rho0) / hopper.g)
+    y = apex[0] + apex[2] * t_fall + foot_lead(apex[2], tm)
+    k = jnp.floor((y - tb.block_left) / tm.seg_length).astype(jnp.int32)
+    seg = tb.block_first + jnp.clip(k, 0, jnp.maximum(tb.block_count - 1, 0))
+    seg = jnp.where(tb.block_count > 0, seg, 0)
+    ids = (seg[:, None] * tm.n + jnp.arange(tm.n)[None, :]).reshape(-1)
+    return ids, jnp.repeat(tb.block_count > 0, tm.n)
 
 
 def _match_positions(apex, tables: PlanTables, hopper: Hopper, recover: bool = False):
     """Situated candidates near the apex and their deployment position (`_NO_MATCH` where
     the domain does not contain the apex), and whether the apex was recovered.
 
-    With `recover`, an apex in no deployed domain takes the nearest deployed candidate
-    (`domain_distance`, ties to the earlier deployed) if it lies within `RECOVERY_DISTANCE`.
+    With `recover`, an apex in no deployed domain takes the nearest deployed domain among
+    `recovery_candidates` (`domain_distance`, ties to the earlier deployed) if it lies
+    within `RECOVERY_DISTANCE`; the candidates are then followed by those.
     """
     ids, inside = candidate_situated(apex, tables.table, tables.templates, tables.terrain,
                                      hopper)
     pos = jnp.where(inside, tables.best_pos[ids], _NO_MATCH)
     if not recover:
         return ids, pos, jnp.asarray(False)
-    deployed = tables.best_pos[ids] < _NO_MATCH
-    d = jnp.where(deployed, domain_distance(apex, ids, tables, hopper), jnp.inf)
+    rec, valid = recovery_candidates(apex, tables, hopper)
+    best = tables.best_pos[rec]
+    d = jnp.where(valid & (best < _NO_MATCH), domain_distance(apex, rec, tables, hopper),
+                  jnp.inf)
     near = jnp.min(d)
-    pick = jnp.argmin(jnp.where(d == near, tables.best_pos[ids], _NO_MATCH))
+    pick = jnp.argmin(jnp.where(d == near, best, _NO_MATCH))
     recovered = jnp.all(pos == _NO_MATCH) & (near <= RECOVERY_DISTANCE)
-    pos = jnp.where(recovered & (jnp.arange(ids.shape[0]) == pick), tables.best_pos[ids], pos)
-    return ids, pos, recovered
+    rec_pos = jnp.where(recovered & (jnp.arange(rec.shape[0]) == pick), best, _NO_MATCH)
+    return jnp.concatenate([ids, rec]), jnp.concatenate([pos, rec_pos]), recovered
 
 
 def first_match(apex, tables: PlanTables, hopper: Hopper, recover: bool = False):
