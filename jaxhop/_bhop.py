@@ -50,11 +50,21 @@ def bhop_apex_map(apex, u, h, hopper: Hopper, wind=0.0):
     return ascent(y_lo, v_lo, h, hopper, wind)
 
 
-def liftoff_for_goal(goal, h, hopper: Hopper):
-    """Inverse ascent `Fu^-1`: liftoff position and velocity that reach `goal` (eqs 25-26)."""
+def liftoff_for_goal(goal, h, hopper: Hopper, wind=0.0):
+    """Inverse ascent `Fu^-1`: liftoff position and velocity that reach `goal` (eqs 25-26).
+
+    With a horizontal flight acceleration `wind` the rise of `t_up = zdot_lo / g` changes the
+    horizontal velocity by `wind t_up` and the position by `wind t_up^2 / 2`; at `wind == 0`
+    the windless expressions are used as they are (bit for bit eqs 25-26).
+    """
     y_g, z_g, ydot_g = goal
     zdot_lo = safe_sqrt(2.0 * hopper.g * (z_g - h - hopper.rho0))
-    return y_g - ydot_g * zdot_lo / hopper.g, jnp.stack([ydot_g, zdot_lo])
+    t_up = zdot_lo / hopper.g
+    calm = wind == 0
+    y_lo = jnp.where(calm, y_g - ydot_g * zdot_lo / hopper.g,
+                     y_g - ydot_g * t_up + 0.5 * wind * t_up**2)
+    ydot_lo = jnp.where(calm, ydot_g, ydot_g - wind * t_up)
+    return y_lo, jnp.stack([ydot_lo, zdot_lo])
 
 
 def stance_controls(v_td, v_lo):
@@ -73,14 +83,17 @@ def stance_controls(v_td, v_lo):
     return th, k
 
 
-def deadbeat_bhop(apex, goal, h, hopper: Hopper):
+def deadbeat_bhop(apex, goal, h, hopper: Hopper, wind=0.0):
     """Deadbeat controls `u = (dy, th, k)` taking `apex` to `goal` over a foothold at `h`.
 
-    Inverts eqs 25-29 for the nominal (windless) model. The result is unclipped; callers clip
-    it to the template's limits.
+    Inverts eqs 25-29; with `wind` (a horizontal flight acceleration, e.g. the disturbance
+    observer's estimate) the descent and the ascent are inverted with it, so that
+    `bhop_apex_map(apex, u, h, hopper, wind) == goal`. `wind == 0` gives the nominal
+    (windless) deadbeat bit for bit. The result is unclipped; callers clip it to the
+    template's limits.
     """
-    y_td, v_td = descent(apex, h, hopper)
-    y_lo, v_lo = liftoff_for_goal(goal, h, hopper)
+    y_td, v_td = descent(apex, h, hopper, wind)
+    y_lo, v_lo = liftoff_for_goal(goal, h, hopper, wind)
     th, k = stance_controls(v_td, v_lo)
     return jnp.stack([y_lo - y_td, th, k])
 

@@ -23,7 +23,7 @@ def fingerprint(plan: Plan, apex0, key, true_terrain, disturbance, config, chunk
     from . import __version__
 
     h = hashlib.sha256()
-    for part in (__version__, chunk, config.model.name, plan.terrain.blocks(),
+    for part in (__version__, chunk, config.model.name, config.controller, plan.terrain.blocks(),
                  true_terrain.blocks(), plan.goal.tolist(), config.max_steps,
                  [float(plan.hopper.m), float(plan.hopper.g), float(plan.hopper.rho0)]):
         h.update(repr(part).encode())

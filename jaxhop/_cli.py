@@ -35,6 +35,9 @@ def _common(p, model=True, noise=False, models=("bhop",)):
         p.add_argument("--max-steps", default="60", type=A.MAX_STEPS_ARG)
         p.add_argument("--tolerance", default="0.05,0.05,0.05", type=A.TOLERANCE,
                        help="goal tolerance per axis y,z,ydot")
+        p.add_argument("--controller", default="paper", choices=("paper", "adaptive"),
+                       help="paper: the paper's controller; adaptive: wind observer, "
+                       "wind-aware deadbeat, recovery outside the domains (docs/decisions.md)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -196,9 +199,9 @@ def cmd_sweep(args) -> int:
                                  ydot0=args.ydot0, dy=args.dy, dz=args.dz,
                                  max_steps=max_steps, tolerance=tol, chunk=args.chunk,
                                  checkpoint=args.checkpoint, model=args.model,
-                                 progress=True)
+                                 progress=True, controller=args.controller)
     out.update({"terrain": terrain.name, "model": args.model, "noise": args.noise,
-                "seed": seed})
+                "seed": seed, "controller": args.controller})
     fails = ", ".join(f"{k} {v}" for k, v in out["failures"].items() if v) or "none"
     print(f"sweep on '{terrain.name}' ({args.model}, noise {args.noise}): "
           f"{out['n_initial_conditions']} initial apexes, success {out['success_rate']:.4f}, "
@@ -227,13 +230,14 @@ def cmd_run(args) -> int:
     terrain, plan, seed, max_steps, tol, disturbance, key = _prepare(args)
     r = run_batch(plan, np.asarray([apex]), key=key, true_terrain=terrain,
                   disturbance=disturbance, max_steps=max_steps, tolerance=np.asarray(tol),
-                  model=args.model)
+                  model=args.model, controller=args.controller)
     steps = int(r["steps"][0])
     out = {"terrain": terrain.name, "model": args.model, "noise": args.noise, "seed": seed,
            "result": RESULT_NAMES[int(r["code"][0])], "steps": steps,
            "apexes": r["apexes"][0][: steps + 1].tolist(),
            "footholds": r["footholds"][0][:steps].tolist(),
-           "policies": r["policies"][0][:steps].tolist()}
+           "policies": r["policies"][0][:steps].tolist(), "controller": args.controller,
+           "recoveries": int(r["recoveries"][0])}
     print(f"run on '{terrain.name}' from {apex}: {out['result']} after {steps} strides; "
           f"final apex {np.round(out['apexes'][-1], 3).tolist()}")
     if args.plot:

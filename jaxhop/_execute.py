@@ -51,8 +51,12 @@ def run_batch(plan: Plan, apex0, *, key=None, true_terrain: Terrain | None = Non
               disturbance: Disturbance | None = None, goal=None, max_steps: int = 60,
               tolerance=None, chunk: int | None = None, progress: bool = False,
               checkpoint: str | None = None, model: str = "bhop", pool: bool | None = None,
-              energy_feedback: bool = False):
+              energy_feedback: bool = False, controller: str = "paper"):
     """Run many initial apexes through the reactive controller.
+
+    `controller`: `"paper"` (the paper's, Fig. 8) or `"adaptive"` (disturbance observer,
+    wind-aware deadbeat, recovery outside the domains; `docs/decisions.md`, "Adaptive
+    controller").
 
     The batch is cut into chunks of `Model.chunk` runs (smaller batches: the next power of
     two), the last one padded: one compilation serves every sweep. Small chunks also end early: a
@@ -73,7 +77,7 @@ def run_batch(plan: Plan, apex0, *, key=None, true_terrain: Terrain | None = Non
     `jax.distributed` process runs; results are the same run for run.
 
     Returns:
-        dict of NumPy arrays: `code, steps, apexes, footholds, policies`.
+        dict of NumPy arrays: `code, steps, apexes, footholds, policies, recoveries`.
     """
     apex0 = np.atleast_2d(np.asarray(apex0, float))
     n = apex0.shape[0]
@@ -85,7 +89,7 @@ def run_batch(plan: Plan, apex0, *, key=None, true_terrain: Terrain | None = Non
     config = RunConfig(goal=jnp.asarray(plan.goal if goal is None else goal, float),
                        tolerance=jnp.full(3, 0.05) if tolerance is None
                        else jnp.asarray(tolerance, float), max_steps=max_steps, model=model,
-                       energy_feedback=energy_feedback)
+                       energy_feedback=energy_feedback, controller=controller)
     devices = jax.local_devices()
     if chunk is None:
         full = model.chunk
@@ -213,12 +217,15 @@ def summarize(result: dict, seconds: float) -> dict:
     code, steps = result["code"], result["steps"]
     n = int(code.size)
     ok = code == Result.SUCCESS
+    rec = result.get("recoveries", np.zeros(n, int))
     return {
         "n_initial_conditions": n,
         "success_rate": float(ok.mean()) if n else 0.0,
         "mean_steps": float(steps[ok].mean()) if ok.any() else 0.0,
         "max_steps": int(steps[ok].max()) if ok.any() else 0,
         "failures": failure_counts(code),
+        "recoveries": {"total": int(rec.sum()), "mean": float(rec.mean()) if n else 0.0,
+                       "runs": int((rec > 0).sum())},
         "seconds": round(seconds, 3),
     }
 
@@ -229,7 +236,8 @@ MAX_GRID = 2_000_000
 def sweep(plan: Plan, *, initial=None, key=None, true_terrain: Terrain | None = None,
           disturbance: Disturbance | None = None, ydot0: float = 0.5, dy: float = 0.05,
           dz: float = 0.05, max_steps: int = 60, tolerance=None, chunk: int | None = None,
-          checkpoint: str | None = None, model: str = "bhop", progress: bool = False):
+          checkpoint: str | None = None, model: str = "bhop", progress: bool = False,
+          controller: str = "paper"):
     """Domain-of-attraction sweep: run every grid state inside the global domain.
 
     The grid (`sweep_grid`) covers `true_terrain` (default: the plan's map); `initial`
@@ -251,5 +259,6 @@ def sweep(plan: Plan, *, initial=None, key=None, true_terrain: Terrain | None = 
             raise InputError("no grid state lies in the global domain (is the goal reachable?)")
     result = run_batch(plan, initial, key=key, true_terrain=true_terrain,
                        disturbance=disturbance, max_steps=max_steps, tolerance=tolerance,
-                       chunk=chunk, progress=progress, checkpoint=checkpoint, model=model)
+                       chunk=chunk, progress=progress, checkpoint=checkpoint, model=model,
+                       controller=controller)
     return summarize(result, time.perf_counter() - t0), initial, result

@@ -14,12 +14,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._bhop import ascent, deadbeat_bhop, stance
+from ._bhop import ascent, deadbeat_bhop, safe_sqrt, stance
 from ._errors import InputError
 from ._flight import COLLISION, OK, liftoff_clear, touchdown
 from ._params import Hopper
 from ._plan import PlanTables
 from ._policies import candidate_situated
+from ._regions import foot_lead
 from ._terrain import Terrain
 
 
@@ -41,29 +42,94 @@ def bhop_stride(apex, u, terrain: Terrain, hopper: Hopper, wind=0.0):
 
 _NO_MATCH = jnp.iinfo(jnp.int32).max
 
+# Recovery outside the domains (docs/decisions.md, "Adaptive controller"): the nearest
+# deployed domain is taken when it lies within RECOVERY_DISTANCE (scaled, see
+# `domain_distance`) of the measured apex: at most one range width outside on the worst
+# axis (the paper's sensor noise, +-0.05 m in z, is +-39 J, the narrowest energy band 40 J).
+RECOVERY_DISTANCE = 1.0
 
-def _match_positions(apex, tables: PlanTables, hopper: Hopper):
+
+def domain_distance(apex, ids, tables: PlanTables, hopper: Hopper):
+    """Scaled distance from `apex` to the domains of situated policies `ids` (eqs 38-41).
+
+    Per axis, how far the apex lies outside the domain's range in units of that range:
+    the touchdown `y` of a ballistic fall to the segment's height against the segment
+    `[-l, l]` (over `2 l`), `ydot` against `[v_lo, v_hi]` (over its width), the energy over
+    the segment's virtual ground against `[e_lo, e_hi]` (over its width); the distance is
+    the largest of the three (0 inside the domain's ranges). A segment the apex is not
+    above (`z <= h + rho0`) is at `inf`.
+    """
+    tm = tables.templates
+    seg, t = ids // tm.n, ids % tm.n
+    py, h = tables.table.centre[seg, 0], tables.table.centre[seg, 1]
+    zr = apex[1] - h - hopper.rho0
+    y_td = apex[0] + apex[2] * safe_sqrt(2.0 * zr / hopper.g) + foot_lead(apex[2], tm)
+    l = tm.half_length
+
+    def beyond(x, lo, hi):
+        return jnp.maximum(jnp.maximum(lo - x, x - hi), 0.0) / (hi - lo)
+
+    energy = 0.5 * hopper.m * apex[2] ** 2 + hopper.m * hopper.g * zr
+    d = jnp.maximum(jnp.maximum(beyond(y_td - py, -l, l), beyond(apex[2], tm.v_lo[t],
+                                                                    tm.v_hi[t])),
+                    beyond(energy, tm.e_lo[t], tm.e_hi[t]))
+    return jnp.where(zr > 0, d, jnp.inf)
+
+
+def recovery_candidates(apex, tables: PlanTables, hopper: Hopper):
+    """Situated ids a recovery considers: on every block, the segment nearest to where the
+    foot falls through the block's top height (all templates)."""
+    tb, tm = tables.table, tables.templates
+    h = tables.terrain.heights
+    t_fall = safe_sqrt(2.0 * (apex[1] - h - hopper.rho0) / hopper.g)
+    y = apex[0] + apex[2] * t_fall + foot_lead(apex[2], tm)
+    k = jnp.floor((y - tb.block_left) / tm.seg_length).astype(jnp.int32)
+    seg = tb.block_first + jnp.clip(k, 0, jnp.maximum(tb.block_count - 1, 0))
+    seg = jnp.where(tb.block_count > 0, seg, 0)
+    ids = (seg[:, None] * tm.n + jnp.arange(tm.n)[None, :]).reshape(-1)
+    return ids, jnp.repeat(tb.block_count > 0, tm.n)
+
+
+def _match_positions(apex, tables: PlanTables, hopper: Hopper, recover: bool = False):
     """Situated candidates near the apex and their deployment position (`_NO_MATCH` where
-    the domain does not contain the apex)."""
+    the domain does not contain the apex), and whether the apex was recovered.
+
+    With `recover`, an apex in no deployed domain takes the nearest deployed domain among
+    `recovery_candidates` (`domain_distance`, ties to the earlier deployed) if it lies
+    within `RECOVERY_DISTANCE`; the candidates are then followed by those.
+    """
     ids, inside = candidate_situated(apex, tables.table, tables.templates, tables.terrain,
                                      hopper)
-    return ids, jnp.where(inside, tables.best_pos[ids], _NO_MATCH)
+    pos = jnp.where(inside, tables.best_pos[ids], _NO_MATCH)
+    if not recover:
+        return ids, pos, jnp.asarray(False)
+    rec, valid = recovery_candidates(apex, tables, hopper)
+    best = tables.best_pos[rec]
+    d = jnp.where(valid & (best < _NO_MATCH), domain_distance(apex, rec, tables, hopper),
+                  jnp.inf)
+    near = jnp.min(d)
+    pick = jnp.argmin(jnp.where(d == near, best, _NO_MATCH))
+    recovered = jnp.all(pos == _NO_MATCH) & (near <= RECOVERY_DISTANCE)
+    rec_pos = jnp.where(recovered & (jnp.arange(rec.shape[0]) == pick), best, _NO_MATCH)
+    return jnp.concatenate([ids, rec]), jnp.concatenate([pos, rec_pos]), recovered
 
 
-def first_match(apex, tables: PlanTables, hopper: Hopper):
+def first_match(apex, tables: PlanTables, hopper: Hopper, recover: bool = False):
     """The first deployed policy whose domain contains `apex`.
 
     Only the first deployed instantiated policy of each situated policy can ever be the
     first match (they share a domain), so the order reduces to `best_pos` per situated
     policy; the situated candidates are those on the segment of the nominal touchdown.
+    With `recover`, the nearest deployed domain where none contains it (`_match_positions`).
 
     Returns:
-        `(found, situated, instantiated)`.
+        `(found, situated, instantiated)`, and with `recover` whether it was recovered.
     """
-    ids, pos = _match_positions(apex, tables, hopper)
+    ids, pos, recovered = _match_positions(apex, tables, hopper, recover)
     k = jnp.argmin(pos)
     found = pos[k] < _NO_MATCH
-    return found, ids[k], tables.best_inst[ids[k]]
+    out = (found, ids[k], tables.best_inst[ids[k]])
+    return out + (recovered,) if recover else out
 
 
 def _in_domain(apexes, tables: PlanTables, hopper: Hopper):
@@ -85,18 +151,22 @@ def clip_to_template(u, tmpl):
     return jnp.clip(jnp.where(jnp.isfinite(u), u, hi), lo, hi)
 
 
-def decide_bhop(apex, tables: PlanTables, hopper: Hopper):
+def decide_bhop(apex, tables: PlanTables, hopper: Hopper, wind=None):
     """BHop controls for one measured apex: first match, deadbeat to its goal (eqs 25-29),
     clip to its template's limits.
 
+    `wind`: the adaptive controller (`None`: the paper's): the deadbeat inverts the flight
+    with this estimated wind, and an apex in no domain is recovered (`first_match`).
+
     Returns:
-        `(found, u, instantiated)`.
+        `(found, u, instantiated)`, and with `wind` whether the apex was recovered.
     """
-    found, s, a = first_match(apex, tables, hopper)
+    adaptive = wind is not None
+    found, s, a, *recovered = first_match(apex, tables, hopper, recover=adaptive)
     nt = tables.templates.n
     h = tables.table.centre[s // nt, 1]
-    u = deadbeat_bhop(apex, tables.goals[a], h, hopper)
-    return found, clip_to_template(u, tables.templates.row(s % nt)), a
+    u = deadbeat_bhop(apex, tables.goals[a], h, hopper, *([wind] if adaptive else []))
+    return (found, clip_to_template(u, tables.templates.row(s % nt)), a, *recovered)
 
 
 # SLIP decisions (docs/decisions.md, "SLIP on BHop plans"): the deadbeat is tried on the
@@ -106,7 +176,8 @@ SLIP_CANDIDATES = 2
 SLIP_ACCEPT = (0.05, 0.05, 0.05)
 
 
-def decide_slip(apex, tables: PlanTables, hopper: Hopper, n_candidates: int = SLIP_CANDIDATES):
+def decide_slip(apex, tables: PlanTables, hopper: Hopper, n_candidates: int = SLIP_CANDIDATES,
+                recover: bool = False):
     """SLIP controls for one measured apex: the deadbeat on the best SLIP-reachable match.
 
     The BHop plan's domains and goals ignore what the SLIP stance cannot do (the paper's
@@ -117,13 +188,16 @@ def decide_slip(apex, tables: PlanTables, hopper: Hopper, n_candidates: int = SL
     first in deployment order whose prediction lies within `SLIP_ACCEPT` of its goal; when
     none does, the one with the smallest miss relative to `SLIP_ACCEPT`.
 
+    With `recover` (the adaptive controller) an apex in no domain is recovered
+    (`first_match`); the SLIP deadbeat stays wind-blind.
+
     Returns:
-        `(found, u, instantiated)`.
+        `(found, u, instantiated)`, and with `recover` whether the apex was recovered.
     """
     from ._slip import slip_stride
     from ._slip_deadbeat import SEARCH_TOL, deadbeat_slip
 
-    ids, pos = _match_positions(apex, tables, hopper)
+    ids, pos, recovered = _match_positions(apex, tables, hopper, recover)
     neg, k = jax.lax.top_k(-pos, n_candidates)
     valid = -neg < _NO_MATCH
     sit = ids[k]
@@ -143,7 +217,8 @@ def decide_slip(apex, tables: PlanTables, hopper: Hopper, n_candidates: int = SL
     pick = jnp.where(jnp.any(good), jnp.argmax(good), jnp.argmin(miss))
     # No candidate at all (outside every domain) or no completed stride: the first match.
     pick = jnp.where(jnp.isfinite(miss[pick]), pick, 0)
-    return valid[0], u[pick], inst[pick]
+    out = (valid[0], u[pick], inst[pick])
+    return out + (recovered,) if recover else out
 
 
 class Model(eqx.Module):
@@ -153,13 +228,16 @@ class Model(eqx.Module):
     `chunk` is the batch size of a full vmapped chunk; `pooled` whether batches of runs go
     through the lane pool by default (`jaxhop._pool`); `instant_stance` whether the stance
     is instantaneous with the foot below the COM (BHop) rather than a compression of the
-    leg from and back to its rest length (SLIP), which is how figures redraw a run.
+    leg from and back to its rest length (SLIP), which is how figures redraw a run;
+    `observes` whether the adaptive controller's disturbance observer (`jaxhop._observer`,
+    a BHop prediction) serves its deadbeat.
     """
 
     name: str = eqx.field(static=True)
     chunk: int = eqx.field(static=True)
     pooled: bool = eqx.field(static=True)
     instant_stance: bool = eqx.field(static=True)
+    observes: bool = eqx.field(static=True)
 
     def stride(self, apex, u, terrain: Terrain, hopper: Hopper, wind=0.0, energy=None):
         """One stride: `(next_apex, code, foothold)`."""
@@ -169,6 +247,12 @@ class Model(eqx.Module):
         """Controls for one measured apex: `(found, u, instantiated)`."""
         raise NotImplementedError
 
+    def decide_adaptive(self, apex, tables: PlanTables, hopper: Hopper, wind):
+        """The adaptive controller's decision with the estimated `wind` (`None`: the
+        model's deadbeat is wind-blind), recovering an apex in no domain:
+        `(found, u, instantiated, recovered)`."""
+        raise NotImplementedError
+
 
 class _BHop(Model):
     def stride(self, apex, u, terrain, hopper, wind=0.0, energy=None):
@@ -176,6 +260,9 @@ class _BHop(Model):
 
     def decide(self, apex, tables, hopper):
         return decide_bhop(apex, tables, hopper)
+
+    def decide_adaptive(self, apex, tables, hopper, wind):
+        return decide_bhop(apex, tables, hopper, wind)
 
 
 class _Slip(Model):
@@ -187,11 +274,14 @@ class _Slip(Model):
     def decide(self, apex, tables, hopper):
         return decide_slip(apex, tables, hopper)
 
+    def decide_adaptive(self, apex, tables, hopper, wind):
+        return decide_slip(apex, tables, hopper, recover=True)
+
 
 # SLIP strides cost a deadbeat solve per lane and run lengths vary more (a vmapped while loop
 # runs until the chunk's longest run ends), so SLIP batches use smaller chunks and the pool.
-BHOP = _BHop("bhop", chunk=256, pooled=False, instant_stance=True)
-SLIP = _Slip("slip", chunk=32, pooled=True, instant_stance=False)
+BHOP = _BHop("bhop", chunk=256, pooled=False, instant_stance=True, observes=True)
+SLIP = _Slip("slip", chunk=32, pooled=True, instant_stance=False, observes=False)
 MODELS = {m.name: m for m in (BHOP, SLIP)}
 
 

@@ -83,9 +83,10 @@ def pool_runs(runs, apex0, key, consts, config: RunConfig, on_done, lanes=POOL_L
                 if live[slot]:
                     still.append((run, mine, False))
                 else:
-                    _, _, steps, _, (apexes, feet, used) = jax.tree_util.tree_unflatten(
-                        treedef, mine)
-                    ended.append((run, (final[slot], steps, apexes, feet, used)))
+                    _, _, steps, _, (apexes, feet, used), control = (
+                        jax.tree_util.tree_unflatten(treedef, mine))
+                    ended.append((run, (final[slot], steps, apexes, feet, used,
+                                        control.recoveries)))
             active = still
             with lock:
                 for run, fields in ended:

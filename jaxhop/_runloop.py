@@ -4,10 +4,14 @@ A step takes one apex of a run: the goal test, the disturbance (sensor noise on 
 measured apex, a landing error; section VI-C), the controller's decision on the measured
 apex (`Model.decide`), the model's stride on the true terrain with the wind
 (`Model.stride`) and the failure checks (a stride that does not finish, a touchdown in a
-forbidden interval of a parkour course). Its drivers: `run_one` (a while loop, vmapped by
-`_batch` for `run_batch`), the SLIP lane pool (`jaxhop._pool`), parkour runs across
-snapshots (`jaxhop.parkour._run`) and the open-loop replay of the figures
-(`jaxhop._replay`).
+forbidden interval of a parkour course). The decision is the paper's controller
+(`controller="paper"`: first match, wind-blind deadbeat) or the adaptive one
+(`"adaptive"`: a disturbance observer, `jaxhop._observer`, whose wind estimate the
+deadbeat inverts, and recovery of apexes measured outside every domain; its state per run
+is a `Control` in the step's input and output; `docs/decisions.md`, "Adaptive
+controller"). Its drivers: `run_one` (a while loop, vmapped by `_batch` for `run_batch`),
+the SLIP lane pool (`jaxhop._pool`), parkour runs across snapshots
+(`jaxhop.parkour._run`) and the open-loop replay of the figures (`jaxhop._replay`).
 """
 
 from __future__ import annotations
@@ -18,15 +22,31 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
+from ._errors import InputError
 from ._models import BHOP, Model, model_for
+from ._observer import Observer, after_stride, observe, observer_init
 from ._params import Disturbance, Hopper
 from ._plan import PlanTables
 from ._result import Result
 from ._terrain import Terrain
 
+CONTROLLERS = ("paper", "adaptive")
+#: A run whose apex is measured outside every domain at more than this many consecutive
+#: apexes ends with `outside_domain` even where recovery finds a policy.
+RECOVERY_STREAK = 3
+
+
+def check_controller(name: str) -> str:
+    if name not in CONTROLLERS:
+        raise InputError(f"controller must be one of {', '.join(CONTROLLERS)}, got {name!r}")
+    return name
+
 
 class RunConfig(eqx.Module):
     """Execution settings.
+
+    `controller`: `"paper"` (the paper's reactive controller, Fig. 8) or `"adaptive"`
+    (disturbance observer, wind-aware deadbeat, recovery outside the domains).
 
     `landing`: draw a fourth uniform at every apex and shift the true apex by it times
     `Disturbance.landing` before the descent (the parkour runs' draw); without it three
@@ -39,6 +59,7 @@ class RunConfig(eqx.Module):
     model: Model = eqx.field(static=True, default=BHOP, converter=model_for)
     energy_feedback: bool = eqx.field(static=True, default=False)
     landing: bool = eqx.field(static=True, default=False)
+    controller: str = eqx.field(static=True, default="paper", converter=check_controller)
 
 
 class World(eqx.Module):
@@ -53,9 +74,24 @@ class World(eqx.Module):
     forbidden: jnp.ndarray | None = None
 
 
+class Control(NamedTuple):
+    """The adaptive controller's state in a run: its observer, the strides taken from a
+    recovered apex (`recoveries`) and the current run of consecutive recoveries."""
+
+    observer: Observer
+    recoveries: jnp.ndarray
+    streak: jnp.ndarray
+
+
+def control_init() -> Control:
+    zero = jnp.asarray(0, jnp.int32)
+    return Control(observer_init(), zero, zero)
+
+
 class Step(NamedTuple):
     """What one step did: the run's new code (`RUNNING` while it goes on), whether a stride
-    was taken (`stepping`) and completed (`ok`), its next apex, foothold and policy."""
+    was taken (`stepping`) and completed (`ok`), its next apex, foothold and policy, and
+    the controller's state after it."""
 
     code: jnp.ndarray
     stepping: jnp.ndarray
@@ -63,6 +99,7 @@ class Step(NamedTuple):
     next_apex: jnp.ndarray
     foothold: jnp.ndarray
     policy: jnp.ndarray
+    control: Control
 
 
 def at_goal(apex, config: RunConfig):
@@ -95,17 +132,37 @@ def stride_code(nxt, code, foot, world: World):
     return jnp.where((code == Result.SUCCESS) & (kind > 0), kind, code)
 
 
-def step(apex, key, k, world: World, config: RunConfig, controller=None) -> Step:
+def _decide_adaptive(measured, world: World, config: RunConfig, control: Control):
+    """The adaptive decision: observer update, deadbeat with the estimated wind, recovery."""
+    obs = control.observer
+    model = config.model
+    if model.observes:
+        obs = observe(obs, measured, world.disturbance.sensor, world.hopper)
+    found, u, a, recovered = model.decide_adaptive(measured, world.tables, world.hopper,
+                                                   obs.wind if model.observes else None)
+    streak = jnp.where(recovered, control.streak + 1, 0).astype(jnp.int32)
+    found = found & (streak <= RECOVERY_STREAK)
+    return found, u, a, recovered, control._replace(observer=obs, streak=streak)
+
+
+def step(apex, key, k, world: World, config: RunConfig, controller=None,
+         control: Control | None = None) -> Step:
     """Apex `k` of a run: goal test, noise, decision, stride, failure checks.
 
     `controller(measured, k, world) -> (found, u, policy)` replaces the reactive decision
     (`config.model.decide`): the open-loop replay of a fixed plan (`jaxhop._replay`).
+    `control`: the adaptive controller's state before the step (default: a fresh run's).
     """
     done = at_goal(apex, config)
     noise = draw_noise(key, k, config)
     dist = world.disturbance
     measured = apex + noise[:3] * dist.sensor
-    if controller is None:
+    control = control_init() if control is None else control
+    adaptive = controller is None and config.controller == "adaptive"
+    recovered = jnp.asarray(False)
+    if adaptive:
+        found, u, a, recovered, control = _decide_adaptive(measured, world, config, control)
+    elif controller is None:
         found, u, a = config.model.decide(measured, world.tables, world.hopper)
     else:
         found, u, a = controller(measured, k, world)
@@ -121,7 +178,13 @@ def step(apex, key, k, world: World, config: RunConfig, controller=None) -> Step
         ~found, Result.OUTSIDE_DOMAIN, jnp.where(s_code == Result.SUCCESS, Result.RUNNING,
                                                  s_code)))
     stepping = ~done & found
-    return Step(code, stepping, stepping & (s_code == Result.SUCCESS), nxt, foot, a)
+    ok = stepping & (s_code == Result.SUCCESS)
+    if adaptive:
+        # The foothold's height is sensed at touchdown (leg geometry).
+        control = control._replace(
+            observer=after_stride(control.observer, measured, u, foot[1], ok),
+            recoveries=control.recoveries + (stepping & recovered).astype(jnp.int32))
+    return Step(code, stepping, ok, nxt, foot, a, control)
 
 
 def final_code(code, apex, config: RunConfig):
@@ -134,38 +197,40 @@ def final_code(code, apex, config: RunConfig):
 
 
 def run_init(apex0, config: RunConfig):
-    """The carry of a run at its first apex: `(apex, code, steps, k, buffers)`."""
+    """The carry of a run at its first apex: `(apex, code, steps, k, buffers, control)`."""
     n = config.max_steps
     apex0 = jnp.asarray(apex0, float)
     buffers = (jnp.full((n + 1, 3), jnp.nan).at[0].set(apex0), jnp.full((n, 2), jnp.nan),
                jnp.full((n,), -1, jnp.int32))
     return (apex0, jnp.asarray(Result.RUNNING), jnp.asarray(0, jnp.int32), jnp.asarray(0),
-            buffers)
+            buffers, control_init())
 
 
 def run_live(carry, config: RunConfig):
-    _, code, _, k, _ = carry
+    _, code, _, k, _, _ = carry
     return (code == Result.RUNNING) & (k < config.max_steps)
 
 
 def run_step(carry, key, world: World, config: RunConfig):
     """`step` on a recorded run: the apex, footholds and policies go to its buffers."""
-    apex, code, steps, k, (apexes, feet, used) = carry
-    s = step(apex, key, k, world, config)
+    apex, code, steps, k, (apexes, feet, used), control = carry
+    s = step(apex, key, k, world, config, control=control)
     apexes = apexes.at[k + 1].set(jnp.where(s.ok, s.next_apex, jnp.nan))
     feet = feet.at[k].set(jnp.where(s.stepping, s.foothold, jnp.nan))
     used = used.at[k].set(jnp.where(s.stepping, s.policy, -1).astype(jnp.int32))
     apex = jnp.where(s.ok, s.next_apex, apex)
-    return apex, s.code, steps + s.stepping.astype(jnp.int32), k + 1, (apexes, feet, used)
+    return (apex, s.code, steps + s.stepping.astype(jnp.int32), k + 1, (apexes, feet, used),
+            s.control)
 
 
 def run_result(carry, config: RunConfig):
-    """`(code, steps, apexes, footholds, policies)` of a finished (or cut-off) run."""
-    apex, code, steps, _, (apexes, feet, used) = carry
-    return final_code(code, apex, config), steps, apexes, feet, used
+    """`(code, steps, apexes, footholds, policies, recoveries)` of a finished (or cut-off)
+    run."""
+    apex, code, steps, _, (apexes, feet, used), control = carry
+    return final_code(code, apex, config), steps, apexes, feet, used, control.recoveries
 
 
-RUN_FIELDS = ("code", "steps", "apexes", "footholds", "policies")
+RUN_FIELDS = ("code", "steps", "apexes", "footholds", "policies", "recoveries")
 
 
 def run_one(apex0, key, tables: PlanTables, true_terrain: Terrain, hopper: Hopper,
@@ -176,9 +241,10 @@ def run_one(apex0, key, tables: PlanTables, true_terrain: Terrain, hopper: Hoppe
     stride runs on `true_terrain` with the disturbance's wind.
 
     Returns:
-        `(code, steps, apexes, footholds, policies)`: result code, strides taken, the
-        `(max_steps + 1, 3)` apex sequence (NaN after the end), `(max_steps, 2)` footholds and
-        the instantiated policy used at each stride (-1 after the end).
+        `(code, steps, apexes, footholds, policies, recoveries)`: result code, strides taken,
+        the `(max_steps + 1, 3)` apex sequence (NaN after the end), `(max_steps, 2)`
+        footholds, the instantiated policy used at each stride (-1 after the end) and the
+        strides taken from a recovered apex (adaptive controller; 0 with the paper's).
     """
     world = World(tables, true_terrain, hopper, disturbance)
     # A while loop, not a scan: a batch stops when its longest run ends.

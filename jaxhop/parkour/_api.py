@@ -32,7 +32,7 @@ def _stats(ms) -> dict:
 def reactive_parkour(course: Course, *, model: str = "bhop", noise: str = "none",
                      seed: int = 0, runs: int = 1, hopper: Hopper | None = None,
                      templates=None, rebuild: int = 0, plans=None, log=None,
-                     align: bool = True) -> dict:
+                     align: bool = True, controller: str = "paper") -> dict:
     """Run the reactive planner on a course; the result has the MPPC result's keys.
 
     `finished`, `jumps`, `flight_time`, `violations`, `executed` describe run 0 (the first
@@ -40,7 +40,8 @@ def reactive_parkour(course: Course, *, model: str = "bhop", noise: str = "none"
     time per decision (a reactive planner decides at every apex instead of replanning);
     `update_ms` the incremental plan updates at snapshots (`rebuild_ms`: full rebuilds of
     the first `rebuild` snapshots). `align`: `course_map`'s option (`False`: every block's
-    segments centred).
+    segments centred). `controller`: `"paper"` or `"adaptive"` (`jaxhop.RunConfig`);
+    `recoveries` counts the strides taken from a recovered apex (total and mean per run).
     """
     hopper = leg_hopper() if hopper is None else hopper
     templates = leg_templates(hopper) if templates is None else templates
@@ -52,7 +53,8 @@ def reactive_parkour(course: Course, *, model: str = "bhop", noise: str = "none"
     if apex0.shape[0] == 0:
         raise RuntimeError(f"{course.name}: the plan covers no initial state near the start")
     t0 = time.perf_counter()
-    res = run_reactive(cps, padded, apex0, hopper=hopper, noise=noise, seed=seed, model=model)
+    res = run_reactive(cps, padded, apex0, hopper=hopper, noise=noise, seed=seed, model=model,
+                       controller=controller)
     run_s = time.perf_counter() - t0
     dec = decision_ms(cps, padded, apex0[: min(20, len(apex0))], hopper, model)
     code = res["code"]
@@ -72,6 +74,7 @@ def reactive_parkour(course: Course, *, model: str = "bhop", noise: str = "none"
         "course": course.name,
         "planner": "reactive",
         "model": model,
+        "controller": controller,
         "noise": noise,
         "finished": bool(c0 == Result.SUCCESS),
         "jumps": len(executed),
@@ -86,6 +89,8 @@ def reactive_parkour(course: Course, *, model: str = "bhop", noise: str = "none"
         "seed": int(seed),
         "success_rate": float(ok.mean()),
         "failures": failure_counts(code, COURSE_FAILURE_NAMES),
+        "recoveries": {"total": int(res["recoveries"].sum()),
+                       "mean": float(res["recoveries"].mean())},
         "mean_jumps": float(res["steps"][ok].mean()) if ok.any() else None,
         "mean_flight_time": float(np.mean(times)) if times else None,
         "coverage": float(coverage),

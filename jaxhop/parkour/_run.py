@@ -34,7 +34,7 @@ from .._params import NOISE_KINDS, Hopper, check_noise, disturbance_for
 from .._plan import PlanTables
 from .._policies import PairGrid, SituatedTable
 from .._result import Result
-from .._runloop import RunConfig, World, final_code, step
+from .._runloop import Control, RunConfig, World, control_init, final_code, step
 from .._templates import template_scales
 from ..mppc._course import Course
 from ._build import CoursePlan, build_course_plan
@@ -155,29 +155,46 @@ def course_disturbance(noise: str, hopper: Hopper):
     return disturbance_for(check_noise(noise, COURSE_NOISE), hopper)
 
 
-def _course_step(apex, code, key, k, world: World, config: RunConfig):
+def _course_step(apex, code, key, k, world: World, config: RunConfig, control: Control):
     """`step` for the runs still going (ended runs keep their code): `(apex, code, foothold,
-    policy, stepping)`."""
-    s = step(apex, key, k, world, config)
+    policy, stepping, control)`."""
+    s = step(apex, key, k, world, config, control=control)
     running = code == Result.RUNNING
     stepping = running & s.stepping
+    control = jax.tree.map(lambda new, old: jnp.where(running, new, old), s.control, control)
     return (jnp.where(running & s.ok, s.next_apex, apex), jnp.where(running, s.code, code),
             jnp.where(stepping, s.foothold, jnp.nan), jnp.where(stepping, s.policy, -1),
-            stepping)
+            stepping, control)
 
 
-def _course_config(goal, tol, model, max_steps: int = MAX_STRIDES) -> RunConfig:
+def _course_config(goal, tol, model, max_steps: int = MAX_STRIDES,
+                   controller: str = "paper") -> RunConfig:
     # Course runs draw four uniforms per apex: sensor noise and the landing error.
-    return RunConfig(goal, tol, max_steps=max_steps, model=model, landing=True)
+    return RunConfig(goal, tol, max_steps=max_steps, model=model, landing=True,
+                     controller=controller)
 
 
-def _step_one(apex, code, key, k, tables, true_terrain, forb, goal, tol, dist, hopper, model):
+def _step_one(apex, code, key, k, tables, true_terrain, forb, goal, tol, dist, hopper, model,
+              control, controller):
     return _course_step(apex, code, key, k, World(tables, true_terrain, hopper, dist, forb),
-                        _course_config(goal, tol, model))
+                        _course_config(goal, tol, model, controller=controller), control)
 
 
-_step_batch = jax.jit(jax.vmap(_step_one, (0, 0, 0, None, None, None, None, None, None, None,
-                                           None, None)), static_argnames=("model",))
+_step_vmap = jax.jit(jax.vmap(_step_one, (0, 0, 0, None, None, None, None, None, None, None,
+                                          None, None, 0, None)),
+                     static_argnames=("model", "controller"))
+
+
+def _step_batch(apex, code, keys, k, tables, true_terrain, forb, goal, tol, dist, hopper,
+                model, control=None, controller="paper"):
+    """One stride of a batch of course runs: `(apex, code, foothold, policy, stepping,
+    control)`; `control` defaults to fresh runs' controller states."""
+    if control is None:
+        control = jax.vmap(lambda _: control_init())(jnp.arange(apex.shape[0]))
+    return _step_vmap(apex, code, keys, k, tables, true_terrain, forb, goal, tol, dist, hopper,
+                      model, control, controller)
+
+
 _decide_jit = jax.jit(decide, static_argnames=("model",))
 
 
@@ -228,16 +245,17 @@ def initial_states(cps: CoursePlans, padded: Padded, n: int, seed: int,
 
 
 def run_reactive(cps: CoursePlans, padded: Padded, apex0, *, hopper: Hopper, noise="none",
-                 seed: int = 0, model: str = "bhop", max_steps: int = MAX_STRIDES) -> dict:
+                 seed: int = 0, model: str = "bhop", max_steps: int = MAX_STRIDES,
+                 controller: str = "paper") -> dict:
     """Run a batch of initial apexes over the course (snapshots in force by stride).
 
     Stride `k` of every run is one jitted `step` (vmapped) against the plan and true map of
     the environment in force (`CoursePlans.index_at(k)`); run `i` draws its noise from
-    `fold_in(key(seed), i)`.
+    `fold_in(key(seed), i)`. `controller`: `"paper"` or `"adaptive"` (`RunConfig`).
 
     Returns:
         dict of NumPy arrays: `code (n,)`, `steps (n,)`, `apexes (n, max_steps + 1, 3)`,
-        `footholds (n, max_steps, 2)`, `policies (n, max_steps)`.
+        `footholds (n, max_steps, 2)`, `policies (n, max_steps)`, `recoveries (n,)`.
     """
     apex0 = np.atleast_2d(np.asarray(apex0, float))
     n = apex0.shape[0]
@@ -253,11 +271,12 @@ def run_reactive(cps: CoursePlans, padded: Padded, apex0, *, hopper: Hopper, noi
     feet = np.full((nb, max_steps, 2), np.nan)
     used = np.full((nb, max_steps), -1, np.int64)
     steps = np.zeros(nb, np.int64)
+    control = jax.vmap(lambda _: control_init())(jnp.arange(nb))
     for k in range(max_steps):
         e = cps.index_at(k)
-        apex, code, foot, a, stepping = _step_batch(
+        apex, code, foot, a, stepping, control = _step_batch(
             apex, code, keys, k, padded.tables[e], padded.terrains[e], padded.forbidden[e],
-            goal, tol, dist, hopper, model)
+            goal, tol, dist, hopper, model, control, controller)
         stepping = np.asarray(stepping)
         steps += stepping
         feet[:, k] = np.asarray(foot)
@@ -268,7 +287,7 @@ def run_reactive(cps: CoursePlans, padded: Padded, apex0, *, hopper: Hopper, noi
     config = _course_config(goal, tol, model, max_steps)
     code = np.asarray(jax.vmap(final_code, (0, 0, None))(code, apex, config))
     return {"code": code[:n], "steps": steps[:n], "apexes": apexes[:n], "footholds": feet[:n],
-            "policies": used[:n]}
+            "policies": used[:n], "recoveries": np.asarray(control.recoveries)[:n]}
 
 
 def decision_ms(cps: CoursePlans, padded: Padded, apexes, hopper: Hopper,

@@ -1,0 +1,92 @@
+"""Disturbance observer of the adaptive controller: a constant wind learnt from apexes.
+
+The controller predicts the apex each stride should reach; the next measured apex tells it
+how far reality differs. A constant horizontal flight acceleration `a_w` (wind) is
+estimated online from those prediction errors with a scalar Kalman filter
+(`docs/decisions.md`, "Adaptive controller"):
+
+- prediction: the BHop apex map (eq 22) from the measured apex the stride started from,
+  with the controls it applied, over the foothold height sensed at touchdown, flown with
+  the current estimate `a`: `pred = Fa(z_meas, u, h; a)`;
+- measurement: the innovation in horizontal velocity `nu = ydot_meas - pred_ydot`, with
+  `H = d pred_ydot / d a` (about the flight time: the wind acts for the descent and the
+  rise, the descent part passing through the stance);
+- measurement noise `R = (w_v^2 + sum_i (J_i w_i)^2) / 3 + R_MIN`: uniform noise of
+  half-width `w` has variance `w^2 / 3`; the new apex carries `w_v`, the apex the
+  prediction started from carries `w` through `J = d pred_ydot / d z_meas`;
+- process noise `Q` per stride: small, the wind is modelled as constant (a slow drift is
+  still followed).
+
+State per run (`Observer`), reset per run, one sample at a time (vmapped by the drivers).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from ._bhop import bhop_apex_map
+from ._params import Hopper
+
+#: Prior variance of the wind (m/s^2)^2: a standard deviation of 1 m/s^2, five times the
+#: paper's wind, so the first innovation is trusted almost fully.
+PRIOR_VAR = 1.0
+#: Process noise per stride (m/s^2)^2: a constant wind, allowed to drift by ~1e-3 m/s^2.
+PROCESS_VAR = 1e-6
+#: Floor of the measurement variance (m/s)^2 (model rounding when there is no sensor noise).
+R_MIN = 1e-12
+#: Innovations below this (m/s) are rounding, not wind: the filter skips them, so an
+#: undisturbed run keeps an estimate of exactly 0.
+NU_MIN = 1e-9
+
+
+class Observer(NamedTuple):
+    """The observer of one run: the estimate `wind` (m/s^2) and its variance `var`, and the
+    stride awaiting its measured apex (`pending`): the measured apex it started from, its
+    controls and the sensed foothold height."""
+
+    wind: jnp.ndarray
+    var: jnp.ndarray
+    apex: jnp.ndarray
+    u: jnp.ndarray
+    h: jnp.ndarray
+    pending: jnp.ndarray
+
+
+def observer_init() -> Observer:
+    """No wind known, nothing pending."""
+    z = jnp.zeros(3)
+    return Observer(jnp.asarray(0.0), jnp.asarray(PRIOR_VAR), z, z, jnp.asarray(0.0),
+                    jnp.asarray(False))
+
+
+def predicted_ydot(apex, u, h, hopper: Hopper, wind):
+    """The horizontal apex velocity the BHop stride from `apex` with `u` reaches."""
+    return bhop_apex_map(apex, u, h, hopper, wind)[2]
+
+
+def observe(obs: Observer, measured, sensor, hopper: Hopper) -> Observer:
+    """The Kalman update with the apex measured after the pending stride (none pending, or
+    an innovation below `NU_MIN`: the estimate is kept).
+
+    `sensor`: the half-widths of the uniform apex noise `(y, z, ydot)`.
+    """
+    f = lambda a, z: predicted_ydot(z, obs.u, obs.h, hopper, a)  # noqa: E731
+    pred, h_wind = jax.jvp(lambda a: f(a, obs.apex), (obs.wind,), (jnp.ones_like(obs.wind),))
+    jac = jax.grad(lambda z: f(obs.wind, z))(obs.apex)
+    r = (sensor[2] ** 2 + jnp.sum((jac * sensor) ** 2)) / 3.0 + R_MIN
+    p = obs.var + PROCESS_VAR
+    nu = measured[2] - pred
+    gain = p * h_wind / (h_wind**2 * p + r)
+    use = obs.pending & (jnp.abs(nu) >= NU_MIN) & jnp.isfinite(nu) & jnp.isfinite(gain)
+    wind = jnp.where(use, obs.wind + gain * nu, obs.wind)
+    var = jnp.where(use, (1.0 - gain * h_wind) * p, obs.var)
+    return obs._replace(wind=wind, var=var, pending=jnp.asarray(False))
+
+
+def after_stride(obs: Observer, measured, u, h, completed) -> Observer:
+    """Record a stride for the next update (only a completed stride is compared)."""
+    return obs._replace(apex=measured, u=u, h=jnp.asarray(h, float),
+                        pending=jnp.asarray(completed))

@@ -1,0 +1,146 @@
+"""The adaptive controller: disturbance observer, wind-aware deadbeat, recovery, and the
+same runs as the paper's controller when nothing disturbs them."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxhop._bhop import deadbeat_bhop
+from jaxhop._cache import get_plan
+from jaxhop._execute import run_batch, sweep_grid
+from jaxhop._flight import OK
+from jaxhop._models import (
+    RECOVERY_DISTANCE,
+    bhop_stride,
+    domain_distance,
+    first_match,
+    in_global_domain,
+)
+from jaxhop._observer import after_stride, observe, observer_init
+from jaxhop._params import Disturbance, Hopper
+from jaxhop._runloop import RunConfig
+from jaxhop._terrain import builtin_terrain, make_terrain
+
+HOP = Hopper()
+# A long flat floor: strides of about 0.5 m for 40 strides.
+FLOOR = make_terrain([(-5.0, 60.0, 0.0)])
+
+
+def _stride_loop(wind, sensor, n, seed):
+    """`n` strides on the floor with the true `wind`, deadbeat to goals 0.5 m ahead with the
+    observer's estimate; returns the estimates after each stride."""
+    rng = np.random.default_rng(seed)
+    sensor = jnp.asarray(sensor, float)
+    obs = observer_init()
+    apex = jnp.array([0.0, 1.6, 0.5])
+    upd = jax.jit(observe)
+    stride = jax.jit(bhop_stride)
+    out = []
+    for _ in range(n):
+        measured = apex + jnp.asarray(rng.uniform(-1, 1, 3)) * sensor
+        obs = upd(obs, measured, sensor, HOP)
+        out.append(float(obs.wind))
+        goal = jnp.array([measured[0] + 0.5, 1.6, 0.5])
+        u = deadbeat_bhop(measured, goal, 0.0, HOP, obs.wind)
+        nxt, code, foot = stride(apex, u, FLOOR, HOP, wind)
+        assert int(code) == OK
+        obs = after_stride(obs, measured, u, foot[1], True)
+        apex = nxt
+    return np.asarray(out)
+
+
+def test_observer_converges_to_a_constant_wind():
+    est = _stride_loop(-0.2, (0.0, 0.0, 0.0), 6, 0)
+    assert est[0] == 0.0  # nothing measured before the first stride
+    assert abs(est[1] + 0.2) < 1e-3  # after one stride
+    assert np.all(np.abs(est[1:] + 0.2) < 1e-9)
+
+
+def test_observer_averages_the_wind_out_of_sensor_noise():
+    est = _stride_loop(-0.2, (0.05, 0.05, 0.05), 30, 1)
+    assert abs(est[-1] + 0.2) < 0.05
+
+
+def test_observer_stays_near_zero_without_wind_under_sensor_noise():
+    for seed in (2, 3):
+        est = _stride_loop(0.0, (0.05, 0.05, 0.05), 30, seed)
+        assert np.all(np.abs(est[10:]) < 0.06)
+        assert abs(est[-1]) < 0.04
+
+
+def test_observer_keeps_zero_exactly_without_disturbance():
+    assert np.all(_stride_loop(0.0, (0.0, 0.0, 0.0), 8, 0) == 0.0)
+
+
+@pytest.mark.parametrize("wind", [-0.2, 0.35, -1.0])
+def test_adaptive_deadbeat_reaches_the_goal_in_the_wind(wind):
+    rng = np.random.default_rng(5)
+    for _ in range(5):
+        apex = jnp.array([rng.uniform(0, 2), rng.uniform(1.4, 2.0), rng.uniform(-1, 1)])
+        goal = jnp.array([apex[0] + rng.uniform(-0.4, 0.8), rng.uniform(1.3, 1.9),
+                          rng.uniform(-1, 1)])
+        u = deadbeat_bhop(apex, goal, 0.0, HOP, wind)
+        nxt, code, _ = bhop_stride(apex, u, FLOOR, HOP, wind)
+        assert int(code) == OK
+        np.testing.assert_allclose(np.asarray(nxt), np.asarray(goal), atol=1e-9)
+        # Wind-blind controls miss by about the wind times the flight time.
+        blind, _, _ = bhop_stride(apex, deadbeat_bhop(apex, goal, 0.0, HOP), FLOOR, HOP, wind)
+        assert abs(float(blind[2] - goal[2])) > 0.1 * abs(wind)
+
+
+def test_adaptive_deadbeat_without_wind_is_the_paper_deadbeat_bit_for_bit():
+    apex, goal = jnp.array([0.3, 1.7, 0.6]), jnp.array([1.1, 1.8, 0.8])
+    f = jax.jit(deadbeat_bhop)
+    assert np.array_equal(np.asarray(f(apex, goal, 0.0, HOP)),
+                          np.asarray(f(apex, goal, 0.0, HOP, jnp.asarray(0.0))))
+
+
+@pytest.fixture(scope="module")
+def flat_plan():
+    terrain = builtin_terrain("flat")
+    return get_plan(terrain, np.asarray(terrain.goal))
+
+
+def test_recovery_takes_the_nearest_domain(flat_plan):
+    tables = flat_plan.tables()
+    # Over the flat floor, the foot landing mid-segment 7, ydot = 0.5: the templates'
+    # energies end at 1120 J (eq 33). 1200 J lies 80 J above the band (640, 1120) of the
+    # velocity band (0, 1), template 2 * 5 + 4: scaled distance 80 / 480. Template 13
+    # (400-640 J): 560 / 240; template 9 ((-1, 0), 640-1120 J): 0.5 / 1 on ydot.
+    seg, v = 7, 0.5
+    z = 1.0 + (1200.0 - 0.5 * 80 * v**2) / (80 * 9.81)
+    y = 7.5 * 0.15 - v * np.sqrt(2 * (z - 1.0) / 9.81)
+    apex = jnp.array([y, z, v])
+    found, _, _ = first_match(apex, tables, HOP)
+    assert not bool(found)
+    found, s, a, recovered = first_match(apex, tables, HOP, recover=True)
+    assert bool(found) and bool(recovered)
+    assert int(s) == seg * 20 + 14
+    assert int(flat_plan.situated[int(a)]) == int(s)
+    ids = seg * 20 + jnp.array([14, 13, 9])
+    np.testing.assert_allclose(np.asarray(domain_distance(apex, ids, tables, HOP)),
+                               [80 / 480, 560 / 240, 0.5], rtol=1e-9)
+    # Beyond RECOVERY_DISTANCE of every domain: no recovery.
+    far = 1120.0 + 480.0 * (RECOVERY_DISTANCE + 0.1)
+    z = 1.0 + (far - 0.5 * 80 * v**2) / (80 * 9.81)
+    found, _, _, recovered = first_match(jnp.array([y, z, v]), tables, HOP, recover=True)
+    assert not bool(found) and not bool(recovered)
+
+
+def test_adaptive_equals_paper_without_disturbance(flat_plan):
+    grid = sweep_grid(flat_plan.terrain, dy=0.2, dz=0.2)
+    initial = grid[in_global_domain(grid, flat_plan.tables(), flat_plan.hopper)]
+    assert initial.shape[0] > 20
+    runs = {c: run_batch(flat_plan, initial, disturbance=Disturbance(), controller=c)
+            for c in ("paper", "adaptive")}
+    for k in ("code", "steps", "apexes", "footholds", "policies"):
+        np.testing.assert_array_equal(runs["paper"][k], runs["adaptive"][k])
+    assert not runs["adaptive"]["recoveries"].any()
+
+
+def test_controller_option_is_checked():
+    from jaxhop._errors import InputError
+
+    with pytest.raises(InputError):
+        RunConfig(goal=jnp.zeros(3), controller="smart")
