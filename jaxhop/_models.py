@@ -151,12 +151,21 @@ def clip_to_template(u, tmpl):
     return jnp.clip(jnp.where(jnp.isfinite(u), u, hi), lo, hi)
 
 
-def decide_bhop(apex, tables: PlanTables, hopper: Hopper, wind=None):
+def sensed_foothold(apex, foot_offset, terrain: Terrain, hopper: Hopper, wind=0.0):
+    """The foothold a descent from `apex` lands on (`jaxhop._foothold`): `(landed, (y, h))`."""
+    code, block, _, y_foot, _ = touchdown(apex, foot_offset, terrain, hopper, wind)
+    return code == OK, jnp.stack([y_foot, terrain.heights[block]])
+
+
+def decide_bhop(apex, tables: PlanTables, hopper: Hopper, wind=None, heights=None,
+                h_touch=None):
     """BHop controls for one measured apex: first match, deadbeat to its goal (eqs 25-29),
     clip to its template's limits.
 
     `wind`: the adaptive controller (`None`: the paper's): the deadbeat inverts the flight
-    with this estimated wind, and an apex in no domain is recovered (`first_match`).
+    with this estimated wind, and an apex in no domain is recovered (`first_match`). Its
+    deadbeat takes the foothold height sensed at touchdown `h_touch` where finite, else the
+    height of the policy's block in the corrected map `heights` (`jaxhop._foothold`).
 
     Returns:
         `(found, u, instantiated)`, and with `wind` whether the apex was recovered.
@@ -165,6 +174,10 @@ def decide_bhop(apex, tables: PlanTables, hopper: Hopper, wind=None):
     found, s, a, *recovered = first_match(apex, tables, hopper, recover=adaptive)
     nt = tables.templates.n
     h = tables.table.centre[s // nt, 1]
+    if heights is not None:
+        h = heights[tables.table.seg_block[s // nt]]
+    if h_touch is not None:
+        h = jnp.where(jnp.isfinite(h_touch), h_touch, h)
     u = deadbeat_bhop(apex, tables.goals[a], h, hopper, *([wind] if adaptive else []))
     return (found, clip_to_template(u, tables.templates.row(s % nt)), a, *recovered)
 
@@ -177,7 +190,7 @@ SLIP_ACCEPT = (0.05, 0.05, 0.05)
 
 
 def decide_slip(apex, tables: PlanTables, hopper: Hopper, n_candidates: int = SLIP_CANDIDATES,
-                recover: bool = False):
+                recover: bool = False, heights=None):
     """SLIP controls for one measured apex: the deadbeat on the best SLIP-reachable match.
 
     The BHop plan's domains and goals ignore what the SLIP stance cannot do (the paper's
@@ -189,7 +202,8 @@ def decide_slip(apex, tables: PlanTables, hopper: Hopper, n_candidates: int = SL
     none does, the one with the smallest miss relative to `SLIP_ACCEPT`.
 
     With `recover` (the adaptive controller) an apex in no domain is recovered
-    (`first_match`); the SLIP deadbeat stays wind-blind.
+    (`first_match`); the SLIP deadbeat stays wind-blind. `heights`: the block heights of the
+    controller's corrected map (`jaxhop._foothold`), for the deadbeat and its prediction.
 
     Returns:
         `(found, u, instantiated)`, and with `recover` whether the apex was recovered.
@@ -204,10 +218,14 @@ def decide_slip(apex, tables: PlanTables, hopper: Hopper, n_candidates: int = SL
     inst = tables.best_inst[sit]
     goals = tables.goals[inst]
     h = tables.table.centre[sit // tables.templates.n, 1]
+    terrain = tables.terrain
+    if heights is not None:
+        h = heights[tables.table.seg_block[sit // tables.templates.n]]
+        terrain = terrain.with_heights(heights)
 
     def one(goal, h_):
-        u, ok = deadbeat_slip(apex, goal, h_, hopper, terrain=tables.terrain)
-        pred, code, _ = slip_stride(apex, u, tables.terrain, hopper, 0.0, SEARCH_TOL)
+        u, ok = deadbeat_slip(apex, goal, h_, hopper, terrain=terrain)
+        pred, code, _ = slip_stride(apex, u, terrain, hopper, 0.0, SEARCH_TOL)
         miss = jnp.max(jnp.abs(pred - goal) / jnp.asarray(SLIP_ACCEPT))
         return u, jnp.where((code == OK) & jnp.all(jnp.isfinite(pred)), miss, jnp.inf)
 
@@ -247,10 +265,16 @@ class Model(eqx.Module):
         """Controls for one measured apex: `(found, u, instantiated)`."""
         raise NotImplementedError
 
-    def decide_adaptive(self, apex, tables: PlanTables, hopper: Hopper, wind):
+    def decide_adaptive(self, apex, tables: PlanTables, hopper: Hopper, wind, heights,
+                        h_touch):
         """The adaptive controller's decision with the estimated `wind` (`None`: the
-        model's deadbeat is wind-blind), recovering an apex in no domain:
-        `(found, u, instantiated, recovered)`."""
+        model's deadbeat is wind-blind) on the corrected map's block `heights`, with the
+        foothold height `h_touch` sensed for an instantaneous stance (else NaN),
+        recovering an apex in no domain: `(found, u, instantiated, recovered)`."""
+        raise NotImplementedError
+
+    def foot_offset(self, u, hopper: Hopper):
+        """The foot relative to the COM in flight with controls `u`."""
         raise NotImplementedError
 
 
@@ -261,8 +285,11 @@ class _BHop(Model):
     def decide(self, apex, tables, hopper):
         return decide_bhop(apex, tables, hopper)
 
-    def decide_adaptive(self, apex, tables, hopper, wind):
-        return decide_bhop(apex, tables, hopper, wind)
+    def decide_adaptive(self, apex, tables, hopper, wind, heights, h_touch):
+        return decide_bhop(apex, tables, hopper, wind, heights, h_touch)
+
+    def foot_offset(self, u, hopper):
+        return jnp.array([0.0, -hopper.rho0])
 
 
 class _Slip(Model):
@@ -274,8 +301,11 @@ class _Slip(Model):
     def decide(self, apex, tables, hopper):
         return decide_slip(apex, tables, hopper)
 
-    def decide_adaptive(self, apex, tables, hopper, wind):
-        return decide_slip(apex, tables, hopper, recover=True)
+    def decide_adaptive(self, apex, tables, hopper, wind, heights, h_touch):
+        return decide_slip(apex, tables, hopper, recover=True, heights=heights)
+
+    def foot_offset(self, u, hopper):
+        return hopper.rho0 * jnp.stack([jnp.sin(u[0]), -jnp.cos(u[0])])
 
 
 # SLIP strides cost a deadbeat solve per lane and run lengths vary more (a vmapped while loop

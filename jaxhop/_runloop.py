@@ -23,7 +23,8 @@ import jax
 import jax.numpy as jnp
 
 from ._errors import InputError
-from ._models import BHOP, Model, model_for
+from ._foothold import Footholds, corrected_heights, footholds_init, mapped_height, remember
+from ._models import BHOP, Model, model_for, sensed_foothold
 from ._observer import Observer, after_stride, observe, observer_init
 from ._params import Disturbance, Hopper
 from ._plan import PlanTables
@@ -76,16 +77,18 @@ class World(eqx.Module):
 
 class Control(NamedTuple):
     """The adaptive controller's state in a run: its observer, the strides taken from a
-    recovered apex (`recoveries`) and the current run of consecutive recoveries."""
+    recovered apex (`recoveries`), the current run of consecutive recoveries and the
+    footholds it has sensed (`jaxhop._foothold`)."""
 
     observer: Observer
     recoveries: jnp.ndarray
     streak: jnp.ndarray
+    footholds: Footholds
 
 
 def control_init() -> Control:
     zero = jnp.asarray(0, jnp.int32)
-    return Control(observer_init(), zero, zero)
+    return Control(observer_init(), zero, zero, footholds_init())
 
 
 class Step(NamedTuple):
@@ -132,17 +135,42 @@ def stride_code(nxt, code, foot, world: World):
     return jnp.where((code == Result.SUCCESS) & (kind > 0), kind, code)
 
 
-def _decide_adaptive(measured, world: World, config: RunConfig, control: Control):
-    """The adaptive decision: observer update, deadbeat with the estimated wind, recovery."""
+def _decide_adaptive(measured, true_apex, world: World, config: RunConfig, control: Control):
+    """The adaptive decision: observer update, deadbeat with the estimated wind on the map
+    corrected by the sensed footholds (an instantaneous stance with the foothold sensed at
+    its touchdown), recovery. Returns `(found, u, a, recovered, control, heights)`."""
     obs = control.observer
     model = config.model
     if model.observes:
         obs = observe(obs, measured, world.disturbance.sensor, world.hopper)
+    heights = corrected_heights(control.footholds, world.tables.terrain)
+    h_touch = jnp.asarray(jnp.nan)
+    if model.instant_stance:
+        landed, foot = sensed_foothold(true_apex, model.foot_offset(None, world.hopper),
+                                       world.terrain, world.hopper, world.disturbance.wind)
+        h_touch = jnp.where(landed, foot[1], jnp.nan)
     found, u, a, recovered = model.decide_adaptive(measured, world.tables, world.hopper,
-                                                   obs.wind if model.observes else None)
+                                                   obs.wind if model.observes else None,
+                                                   heights, h_touch)
     streak = jnp.where(recovered, control.streak + 1, 0).astype(jnp.int32)
     found = found & (streak <= RECOVERY_STREAK)
-    return found, u, a, recovered, control._replace(observer=obs, streak=streak)
+    return found, u, a, recovered, control._replace(observer=obs, streak=streak), heights
+
+
+def _stance_energy(true_apex, u, a, heights, world: World, config: RunConfig, adaptive):
+    """The apex energy the stance aims at (`jaxhop._slip.bottom_kd`), NaN for none: always
+    with `energy_feedback`; with the adaptive controller where the foothold sensed at
+    touchdown differs from the corrected map under it (a leg-spring stance only)."""
+    goal = world.tables.goals[a]
+    energy = world.hopper.m * (world.hopper.g * goal[1] + 0.5 * goal[2] ** 2)
+    if config.energy_feedback:
+        return energy
+    if not adaptive or config.model.instant_stance:
+        return None
+    landed, foot = sensed_foothold(true_apex, config.model.foot_offset(u, world.hopper),
+                                   world.terrain, world.hopper, world.disturbance.wind)
+    differs = landed & (foot[1] != mapped_height(foot, heights, world.tables.terrain))
+    return jnp.where(differs, energy, jnp.nan)
 
 
 def step(apex, key, k, world: World, config: RunConfig, controller=None,
@@ -160,17 +188,16 @@ def step(apex, key, k, world: World, config: RunConfig, controller=None,
     control = control_init() if control is None else control
     adaptive = controller is None and config.controller == "adaptive"
     recovered = jnp.asarray(False)
+    true_apex = apex.at[0].add(noise[3] * dist.landing) if config.landing else apex
+    heights = world.tables.terrain.heights
     if adaptive:
-        found, u, a, recovered, control = _decide_adaptive(measured, world, config, control)
+        found, u, a, recovered, control, heights = _decide_adaptive(measured, true_apex, world,
+                                                                    config, control)
     elif controller is None:
         found, u, a = config.model.decide(measured, world.tables, world.hopper)
     else:
         found, u, a = controller(measured, k, world)
-    energy = None
-    if config.energy_feedback:
-        goal = world.tables.goals[a]
-        energy = world.hopper.m * (world.hopper.g * goal[1] + 0.5 * goal[2] ** 2)
-    true_apex = apex.at[0].add(noise[3] * dist.landing) if config.landing else apex
+    energy = _stance_energy(true_apex, u, a, heights, world, config, adaptive)
     nxt, s_code, foot = config.model.stride(true_apex, u, world.terrain, world.hopper,
                                             dist.wind, energy)
     s_code = stride_code(nxt, s_code, foot, world)
@@ -183,7 +210,8 @@ def step(apex, key, k, world: World, config: RunConfig, controller=None,
         # The foothold's height is sensed at touchdown (leg geometry).
         control = control._replace(
             observer=after_stride(control.observer, measured, u, foot[1], ok),
-            recoveries=control.recoveries + (stepping & recovered).astype(jnp.int32))
+            recoveries=control.recoveries + (stepping & recovered).astype(jnp.int32),
+            footholds=remember(control.footholds, foot, ok, k))
     return Step(code, stepping, ok, nxt, foot, a, control)
 
 

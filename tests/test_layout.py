@@ -22,7 +22,7 @@ STAGES = [
     ["_regions", "_policies"],
     ["_graph", "_deploy", "_stages", "_plan"],
     ["_cache"],
-    ["_models", "_observer", "_runloop", "_pool", "_checkpoint", "_execute", "_replay"],
+    ["_models", "_observer", "_foothold", "_runloop", "_pool", "_checkpoint", "_execute", "_replay"],
     ["_draw", "_plot", "_animate"],
     ["mppc"],
     ["parkour"],
