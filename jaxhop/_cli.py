@@ -35,7 +35,7 @@ def _common(p, model=True, noise=False, models=("bhop",)):
         p.add_argument("--max-steps", default="60", type=A.MAX_STEPS_ARG)
         p.add_argument("--tolerance", default="0.05,0.05,0.05", type=A.TOLERANCE,
                        help="goal tolerance per axis y,z,ydot")
-        p.add_argument("--controller", default="paper", choices=("paper", "adaptive"),
+        p.add_argument("--controller", default="adaptive", choices=("paper", "adaptive"),
                        help="paper: the paper's controller; adaptive: wind observer, "
                        "wind-aware deadbeat, recovery outside the domains (docs/decisions.md)")
 

@@ -224,6 +224,8 @@ def summarize(result: dict, seconds: float) -> dict:
         "mean_steps": float(steps[ok].mean()) if ok.any() else 0.0,
         "max_steps": int(steps[ok].max()) if ok.any() else 0,
         "failures": failure_counts(code),
+        # failed at the first apex or in the first stride, before any observation
+        "first_stride_failures": int((~ok & (steps <= 1)).sum()),
         "recoveries": {"total": int(rec.sum()), "mean": float(rec.mean()) if n else 0.0,
                        "runs": int((rec > 0).sum())},
         "seconds": round(seconds, 3),

@@ -56,7 +56,7 @@ def add_parser(subparsers):
                    help="seed of initial states and noise")
     p.add_argument("--runs", type=v.arg_type(v.count, "--runs", MAX_RUNS), default=1,
                    help="reactive planner: seeded runs (run 0 is reported in full)")
-    p.add_argument("--controller", default="paper", choices=["paper", "adaptive"],
+    p.add_argument("--controller", default="adaptive", choices=["paper", "adaptive"],
                    help="reactive planner: the paper's controller, or adaptive (wind "
                         "observer, wind-aware deadbeat, recovery; docs/decisions.md)")
     p.add_argument("--segments", default="lattice", choices=["lattice", "centred"],
@@ -109,7 +109,7 @@ def run_parkour(args, course) -> int:
 
         out = reactive_parkour(course, model=getattr(args, "model", "bhop"), noise=noise,
                                seed=seed, runs=runs,
-                               controller=getattr(args, "controller", "paper"),
+                               controller=getattr(args, "controller", "adaptive"),
                                align=getattr(args, "segments", "lattice") == "lattice",
                                log=lambda m: print(m, file=sys.stderr))
     else:
