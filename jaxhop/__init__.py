@@ -8,7 +8,7 @@ import jax as _jax
 
 _jax.config.update("jax_enable_x64", True)
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"
 
 from ._bhop import bhop_apex_map as bhop_apex_map
 from ._bhop import deadbeat_bhop as deadbeat_bhop
