@@ -29,10 +29,12 @@ def main():
     examples = [{k: v[i] for k, v in runs.items()} for i in range(2)]
     save(_plot.runs_figure(terrain, examples, plan.goal, "Two reactive BHop runs"),
          "example_runs.png")
-    summary, initial, result = jaxhop.sweep(plan, disturbance=jaxhop.disturbance_for("sensor"),
-                                            key=jax.random.key(0))
-    save(_plot.doa_figure(terrain, initial, result["code"], result["steps"], plan.goal,
-                          "BHop, sensor noise"), "doa_sensor.png")
+    for noise, controller in (("sensor", "adaptive"), ("wind", "adaptive"), ("wind", "paper")):
+        summary, initial, result = jaxhop.sweep(plan, disturbance=jaxhop.disturbance_for(noise),
+                                                key=jax.random.key(0), controller=controller)
+        save(_plot.doa_figure(terrain, initial, result["code"], result["steps"], plan.goal,
+                              f"BHop, {noise} noise, {controller} controller"),
+             f"doa_{noise}{'' if controller == 'adaptive' else '_paper'}.png")
     from jaxhop.mppc import MPPC, load_course, plot_run, run_course
 
     course = load_course("mppc-sim-1")

@@ -27,14 +27,16 @@ def _nearest_inside(initial: np.ndarray, target) -> np.ndarray:
 
 
 def demo(out: str = "jaxhop-demo", cache: bool = True, log=print) -> dict:
-    """Plan on `reference`, two example runs, nominal and wind sweeps, figures, summary.
+    """Plan on `reference`, two example runs, sweeps under disturbances, figures, summary.
 
     Writes `template_regions.png` (Fig. 9), `terrain_domain.png` (Fig. 10),
     `goal_coverage.png` (Fig. 11), `prepares.png` (Fig. 12), `example_runs.png` (Fig. 13),
     `run.gif`, `disturbance_wind.png` and `disturbance_sensor.png` (Figs. 14-15: the
-    offline plan open loop against the reactive controller), `doa_none.png` and
-    `doa_wind.png` (Fig. 16), `slip_long.png` (Fig. 21: SLIP on `long` with its BHop plan)
-    and `summary.json` into `out`, and prints a short table.
+    offline plan open loop against the adaptive reactive controller), `doa_none.png`,
+    `doa_wind.png` (Fig. 16) and `doa_sensor.png` (Fig. 17) with the adaptive controller,
+    `doa_wind_paper.png` (the paper's controller under wind), `slip_long.png` (Fig. 21:
+    SLIP on `long` with its BHop plan) and `summary.json` into `out`, and prints a short
+    table. Every run uses the default goal tolerance (0.05 m, 0.05 m, 0.05 m/s).
     """
     import matplotlib.pyplot as plt
 
@@ -83,21 +85,19 @@ def demo(out: str = "jaxhop-demo", cache: bool = True, log=print) -> dict:
     figures["run_animation"] = animate_run(terrain, examples[0], os.path.join(out, "run.gif"),
                                            goal=plan.goal)
 
-    # Figs. 14-15: the first example's plan replayed open loop vs. the reactive controller.
-    # Under wind the goal's velocity tolerance is 0.15 m/s: at the default 0.05 m/s the
-    # wind-blind deadbeat keeps every run hopping on the goal (README, docs/decisions.md).
+    # Figs. 14-15: the first example's plan replayed open loop vs. the adaptive reactive
+    # controller (docs/decisions.md, "Adaptive controller").
     disturbed = {}
-    for noise, mode, v_tol in (("wind", "controls", 0.15), ("sensor", "goals", 0.05)):
-        dist, key, tol = disturbance_for(noise), jax.random.key(1), (0.05, 0.05, v_tol)
-        # chunk = the examples' batch: the compiled run from above serves again.
+    for noise, mode in (("wind", "controls"), ("sensor", "goals")):
+        dist, key, tol = disturbance_for(noise), jax.random.key(1), (0.05, 0.05, 0.05)
         reactive = run_batch(plan, starts[:1], key=key, disturbance=dist, chunk=len(starts),
-                             tolerance=np.asarray(tol))
+                             tolerance=np.asarray(tol), controller="adaptive")
         reactive = {k: v[0] for k, v in reactive.items()}
         replay = open_loop_replay(plan, examples[0], disturbance=dist, key=key, mode=mode,
                                   tolerance=tol)
-        note = f"goal tolerance on ydot {v_tol} m/s" if v_tol != 0.05 else ""
         save(disturbance_figure(terrain, examples[0], replay, reactive, plan.goal, noise,
-                                wind=float(dist.wind), note=note), f"disturbance_{noise}.png")
+                                wind=float(dist.wind), note="adaptive controller"),
+             f"disturbance_{noise}.png")
         disturbed[noise] = {
             "tolerance": list(tol),
             "open_loop": {"replays": mode, "result": RESULT_NAMES[int(replay["code"])],
@@ -106,11 +106,15 @@ def demo(out: str = "jaxhop-demo", cache: bool = True, log=print) -> dict:
                          "steps": int(reactive["steps"])}}
 
     sweeps = {}
-    for noise in ("none", "wind"):
-        sweeps[noise], _, res = sweep(plan, initial=initial, key=jax.random.key(0),
-                                      disturbance=disturbance_for(noise), progress=True)
+    for noise, controller in (("none", "adaptive"), ("wind", "adaptive"),
+                              ("sensor", "adaptive"), ("wind", "paper")):
+        name = noise if controller == "adaptive" else f"{noise}, paper"
+        sweeps[name], _, res = sweep(plan, initial=initial, key=jax.random.key(0),
+                                     disturbance=disturbance_for(noise), progress=True,
+                                     controller=controller)
         save(doa_figure(terrain, initial, res["code"], res["steps"], plan.goal,
-                        f"BHop, noise {noise}"), f"doa_{noise}.png")
+                        f"BHop, noise {noise}, {controller} controller"),
+             f"doa_{noise}{'' if controller == 'adaptive' else '_paper'}.png")
 
     # Fig. 21: the SLIP model across `long`, driven by the BHop plan (compiles the SLIP
     # stride and deadbeat: about a minute).
@@ -150,10 +154,10 @@ def demo(out: str = "jaxhop-demo", cache: bool = True, log=print) -> dict:
               f"{d['reactive']['steps']} strides")
     sl = summary["slip_long"]
     print(f"  SLIP on 'long' from {sl['start']}: {sl['result']} in {sl['steps']} strides")
-    print(f"  {'sweep':8s} {'runs':>6s} {'success':>8s} {'mean':>6s}  failures")
+    print(f"  {'sweep':13s} {'runs':>6s} {'success':>8s} {'mean':>6s}  failures")
     for noise, s in sweeps.items():
         fails = ", ".join(f"{k} {v}" for k, v in s["failures"].items() if v) or "-"
-        print(f"  {noise:8s} {s['n_initial_conditions']:6d} {s['success_rate']:8.4f} "
+        print(f"  {noise:13s} {s['n_initial_conditions']:6d} {s['success_rate']:8.4f} "
               f"{s['mean_steps']:6.2f}  {fails}")
     print(f"  figures: {', '.join(os.path.basename(v) for v in figures.values())}; "
           f"total {summary['seconds']} s")
