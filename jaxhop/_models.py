@@ -17,6 +17,7 @@ import numpy as np
 from ._bhop import ascent, deadbeat_bhop, safe_sqrt, stance
 from ._errors import InputError
 from ._flight import COLLISION, OK, liftoff_clear, touchdown
+from ._observer import NU_MIN_SLIP, Observer, observe, slip_terms
 from ._params import Hopper
 from ._plan import PlanTables
 from ._policies import candidate_situated
@@ -190,7 +191,7 @@ SLIP_ACCEPT = (0.05, 0.05, 0.05)
 
 
 def decide_slip(apex, tables: PlanTables, hopper: Hopper, n_candidates: int = SLIP_CANDIDATES,
-                recover: bool = False, heights=None):
+                recover: bool = False, heights=None, wind=None):
     """SLIP controls for one measured apex: the deadbeat on the best SLIP-reachable match.
 
     The BHop plan's domains and goals ignore what the SLIP stance cannot do (the paper's
@@ -202,8 +203,9 @@ def decide_slip(apex, tables: PlanTables, hopper: Hopper, n_candidates: int = SL
     none does, the one with the smallest miss relative to `SLIP_ACCEPT`.
 
     With `recover` (the adaptive controller) an apex in no domain is recovered
-    (`first_match`); the SLIP deadbeat stays wind-blind. `heights`: the block heights of the
-    controller's corrected map (`jaxhop._foothold`), for the deadbeat and its prediction.
+    (`first_match`). `heights`: the block heights of the controller's corrected map
+    (`jaxhop._foothold`), for the deadbeat and its prediction. `wind`: the estimated flight
+    acceleration the deadbeat inverts and the prediction flies with (`None`: none).
 
     Returns:
         `(found, u, instantiated)`, and with `recover` whether the apex was recovered.
@@ -224,8 +226,9 @@ def decide_slip(apex, tables: PlanTables, hopper: Hopper, n_candidates: int = SL
         terrain = terrain.with_heights(heights)
 
     def one(goal, h_):
-        u, ok = deadbeat_slip(apex, goal, h_, hopper, terrain=terrain)
-        pred, code, _ = slip_stride(apex, u, terrain, hopper, 0.0, SEARCH_TOL)
+        u, ok = deadbeat_slip(apex, goal, h_, hopper, terrain=terrain, wind=wind)
+        pred, code, _ = slip_stride(apex, u, terrain, hopper, 0.0 if wind is None else wind,
+                                    SEARCH_TOL)
         miss = jnp.max(jnp.abs(pred - goal) / jnp.asarray(SLIP_ACCEPT))
         return u, jnp.where((code == OK) & jnp.all(jnp.isfinite(pred)), miss, jnp.inf)
 
@@ -247,8 +250,8 @@ class Model(eqx.Module):
     through the lane pool by default (`jaxhop._pool`); `instant_stance` whether the stance
     is instantaneous with the foot below the COM (BHop) rather than a compression of the
     leg from and back to its rest length (SLIP), which is how figures redraw a run;
-    `observes` whether the adaptive controller's disturbance observer (`jaxhop._observer`,
-    a BHop prediction) serves its deadbeat.
+    `observes` whether the adaptive controller's disturbance observer (`jaxhop._observer`)
+    serves its deadbeat.
     """
 
     name: str = eqx.field(static=True)
@@ -277,6 +280,10 @@ class Model(eqx.Module):
         """The foot relative to the COM in flight with controls `u`."""
         raise NotImplementedError
 
+    def observe(self, obs: Observer, measured, sensor, hopper: Hopper) -> Observer:
+        """The observer's update with the apex measured after its pending stride."""
+        raise NotImplementedError
+
 
 class _BHop(Model):
     def stride(self, apex, u, terrain, hopper, wind=0.0, energy=None):
@@ -291,6 +298,9 @@ class _BHop(Model):
     def foot_offset(self, u, hopper):
         return jnp.array([0.0, -hopper.rho0])
 
+    def observe(self, obs, measured, sensor, hopper):
+        return observe(obs, measured, sensor, hopper)
+
 
 class _Slip(Model):
     def stride(self, apex, u, terrain, hopper, wind=0.0, energy=None):
@@ -302,16 +312,19 @@ class _Slip(Model):
         return decide_slip(apex, tables, hopper)
 
     def decide_adaptive(self, apex, tables, hopper, wind, heights, h_touch):
-        return decide_slip(apex, tables, hopper, recover=True, heights=heights)
+        return decide_slip(apex, tables, hopper, recover=True, heights=heights, wind=wind)
 
     def foot_offset(self, u, hopper):
         return hopper.rho0 * jnp.stack([jnp.sin(u[0]), -jnp.cos(u[0])])
+
+    def observe(self, obs, measured, sensor, hopper):
+        return observe(obs, measured, sensor, hopper, slip_terms, NU_MIN_SLIP)
 
 
 # SLIP strides cost a deadbeat solve per lane and run lengths vary more (a vmapped while loop
 # runs until the chunk's longest run ends), so SLIP batches use smaller chunks and the pool.
 BHOP = _BHop("bhop", chunk=256, pooled=False, instant_stance=True, observes=True)
-SLIP = _Slip("slip", chunk=32, pooled=True, instant_stance=False, observes=False)
+SLIP = _Slip("slip", chunk=32, pooled=True, instant_stance=False, observes=True)
 MODELS = {m.name: m for m in (BHOP, SLIP)}
 
 

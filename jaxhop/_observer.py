@@ -5,12 +5,13 @@ how far reality differs. A constant horizontal flight acceleration `a_w` (wind) 
 estimated online from those prediction errors with a scalar Kalman filter
 (`docs/decisions.md`, "Adaptive controller"):
 
-- prediction: the BHop apex map (eq 22) from the measured apex the stride started from,
-  with the controls it applied, over the foothold height sensed at touchdown, flown with
-  the current estimate `a`: `pred = Fa(z_meas, u, h; a)`;
+- prediction: the model's apex map from the measured apex the stride started from, with
+  the controls it applied, over the foothold height sensed at touchdown, flown with the
+  current estimate `a`: `pred = Fa(z_meas, u, h; a)` (BHop: eq 22; SLIP: its apex map,
+  with the stance's target energy where the stride used one);
 - measurement: the innovation in horizontal velocity `nu = ydot_meas - pred_ydot`, with
   `H = d pred_ydot / d a` (about the flight time: the wind acts for the descent and the
-  rise, the descent part passing through the stance);
+  rise, the descent part passing through the stance; through diffrax for the SLIP);
 - measurement noise `R = (w_v^2 + sum_i (J_i w_i)^2) / 3 + R_MIN`: uniform noise of
   half-width `w` has variance `w^2 / 3`; the new apex carries `w_v`, the apex the
   prediction started from carries `w` through `J = d pred_ydot / d z_meas`;
@@ -24,6 +25,7 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+import diffrax
 import jax
 import jax.numpy as jnp
 
@@ -38,14 +40,17 @@ PROCESS_VAR = 1e-6
 #: Floor of the measurement variance (m/s)^2 (model rounding when there is no sensor noise).
 R_MIN = 1e-12
 #: Innovations below this (m/s) are rounding, not wind: the filter skips them, so an
-#: undisturbed run keeps an estimate of exactly 0.
+#: undisturbed run keeps an estimate of exactly 0. The SLIP's floor is its integration
+#: noise: the prediction is a second diffrax solve of the executed stride (rtol 1e-10),
+#: from a touchdown computed in closed form rather than on the terrain.
 NU_MIN = 1e-9
+NU_MIN_SLIP = 1e-7
 
 
 class Observer(NamedTuple):
     """The observer of one run: the estimate `wind` (m/s^2) and its variance `var`, and the
     stride awaiting its measured apex (`pending`): the measured apex it started from, its
-    controls and the sensed foothold height."""
+    controls, the sensed foothold height and the stance's target energy (NaN: none)."""
 
     wind: jnp.ndarray
     var: jnp.ndarray
@@ -53,13 +58,14 @@ class Observer(NamedTuple):
     u: jnp.ndarray
     h: jnp.ndarray
     pending: jnp.ndarray
+    energy: jnp.ndarray
 
 
 def observer_init() -> Observer:
     """No wind known, nothing pending."""
     z = jnp.zeros(3)
     return Observer(jnp.asarray(0.0), jnp.asarray(PRIOR_VAR), z, z, jnp.asarray(0.0),
-                    jnp.asarray(False))
+                    jnp.asarray(False), jnp.asarray(jnp.nan))
 
 
 def predicted_ydot(apex, u, h, hopper: Hopper, wind):
@@ -67,26 +73,52 @@ def predicted_ydot(apex, u, h, hopper: Hopper, wind):
     return bhop_apex_map(apex, u, h, hopper, wind)[2]
 
 
-def observe(obs: Observer, measured, sensor, hopper: Hopper) -> Observer:
-    """The Kalman update with the apex measured after the pending stride (none pending, or
-    an innovation below `NU_MIN`: the estimate is kept).
-
-    `sensor`: the half-widths of the uniform apex noise `(y, z, ydot)`.
-    """
+def bhop_terms(obs: Observer, hopper: Hopper):
+    """`(pred, H, J)` of the pending BHop stride: the predicted horizontal apex velocity,
+    its derivatives in the wind and in the measured apex it started from."""
     f = lambda a, z: predicted_ydot(z, obs.u, obs.h, hopper, a)  # noqa: E731
     pred, h_wind = jax.jvp(lambda a: f(a, obs.apex), (obs.wind,), (jnp.ones_like(obs.wind),))
-    jac = jax.grad(lambda z: f(obs.wind, z))(obs.apex)
+    return pred, h_wind, jax.grad(lambda z: f(obs.wind, z))(obs.apex)
+
+
+def slip_terms(obs: Observer, hopper: Hopper):
+    """`bhop_terms` for the SLIP stride: its apex map (with the stance's target energy where
+    the stride used one), both derivatives in one forward-mode pass through diffrax."""
+    from ._slip import STRIDE_TOL, Tolerances, slip_apex_map
+
+    tol = Tolerances(STRIDE_TOL.rtol, STRIDE_TOL.atol, diffrax.ForwardMode())
+
+    def f(x):
+        nxt, _ = slip_apex_map(x[1:], obs.u, obs.h, hopper, tol, x[0], obs.energy)
+        return nxt[2]
+
+    x = jnp.concatenate([obs.wind[None], obs.apex])
+    jac = jax.jacfwd(f)(x)
+    return f(x), jac[0], jac[1:]
+
+
+def observe(obs: Observer, measured, sensor, hopper: Hopper, terms=bhop_terms,
+            nu_min=NU_MIN) -> Observer:
+    """The Kalman update with the apex measured after the pending stride (none pending, or
+    an innovation below `nu_min`: the estimate is kept).
+
+    `sensor`: the half-widths of the uniform apex noise `(y, z, ydot)`. `terms`: the
+    model's prediction, `bhop_terms` or `slip_terms`.
+    """
+    pred, h_wind, jac = terms(obs, hopper)
     r = (sensor[2] ** 2 + jnp.sum((jac * sensor) ** 2)) / 3.0 + R_MIN
     p = obs.var + PROCESS_VAR
     nu = measured[2] - pred
     gain = p * h_wind / (h_wind**2 * p + r)
-    use = obs.pending & (jnp.abs(nu) >= NU_MIN) & jnp.isfinite(nu) & jnp.isfinite(gain)
+    use = obs.pending & (jnp.abs(nu) >= nu_min) & jnp.isfinite(nu) & jnp.isfinite(gain)
     wind = jnp.where(use, obs.wind + gain * nu, obs.wind)
     var = jnp.where(use, (1.0 - gain * h_wind) * p, obs.var)
     return obs._replace(wind=wind, var=var, pending=jnp.asarray(False))
 
 
-def after_stride(obs: Observer, measured, u, h, completed) -> Observer:
-    """Record a stride for the next update (only a completed stride is compared)."""
+def after_stride(obs: Observer, measured, u, h, completed, energy=None) -> Observer:
+    """Record a stride for the next update (only a completed stride is compared).
+    `energy`: the target energy its stance used (`None`: none)."""
+    energy = jnp.asarray(jnp.nan if energy is None else energy, float)
     return obs._replace(apex=measured, u=u, h=jnp.asarray(h, float),
-                        pending=jnp.asarray(completed))
+                        pending=jnp.asarray(completed), energy=energy)

@@ -25,7 +25,7 @@ import jax.numpy as jnp
 from ._errors import InputError
 from ._foothold import Footholds, corrected_heights, footholds_init, mapped_height, remember
 from ._models import BHOP, Model, model_for, sensed_foothold
-from ._observer import Observer, after_stride, observe, observer_init
+from ._observer import Observer, after_stride, observer_init
 from ._params import Disturbance, Hopper
 from ._plan import PlanTables
 from ._result import Result
@@ -142,7 +142,7 @@ def _decide_adaptive(measured, true_apex, world: World, config: RunConfig, contr
     obs = control.observer
     model = config.model
     if model.observes:
-        obs = observe(obs, measured, world.disturbance.sensor, world.hopper)
+        obs = model.observe(obs, measured, world.disturbance.sensor, world.hopper)
     heights = corrected_heights(control.footholds, world.tables.terrain)
     h_touch = jnp.asarray(jnp.nan)
     if model.instant_stance:
@@ -157,18 +157,27 @@ def _decide_adaptive(measured, true_apex, world: World, config: RunConfig, contr
     return found, u, a, recovered, control._replace(observer=obs, streak=streak), heights
 
 
-def _stance_energy(true_apex, u, a, heights, world: World, config: RunConfig, adaptive):
+def _stance_energy(true_apex, u, a, heights, world: World, config: RunConfig, adaptive,
+                   wind=None):
     """The apex energy the stance aims at (`jaxhop._slip.bottom_kd`), NaN for none: always
     with `energy_feedback`; with the adaptive controller where the foothold sensed at
-    touchdown differs from the corrected map under it (a leg-spring stance only)."""
+    touchdown differs from the corrected map under it (a leg-spring stance only).
+
+    With the estimated `wind`, the energy the rise to the goal needs at liftoff
+    (`jaxhop._slip_deadbeat.energy_kd`, with the rise time of a mirrored stance)."""
     goal = world.tables.goals[a]
-    energy = world.hopper.m * (world.hopper.g * goal[1] + 0.5 * goal[2] ** 2)
+    hop = world.hopper
+    energy = hop.m * (hop.g * goal[1] + 0.5 * goal[2] ** 2)
     if config.energy_feedback:
         return energy
     if not adaptive or config.model.instant_stance:
         return None
-    landed, foot = sensed_foothold(true_apex, config.model.foot_offset(u, world.hopper),
-                                   world.terrain, world.hopper, world.disturbance.wind)
+    landed, foot = sensed_foothold(true_apex, config.model.foot_offset(u, hop),
+                                   world.terrain, hop, world.disturbance.wind)
+    if wind is not None:
+        z_lo = foot[1] + hop.rho0 * jnp.cos(u[0])
+        t_up = jnp.sqrt(jnp.maximum(2.0 * (goal[1] - z_lo) / hop.g, 0.0))
+        energy = hop.m * (hop.g * goal[1] + 0.5 * (goal[2] - wind * t_up) ** 2)
     differs = landed & (foot[1] != mapped_height(foot, heights, world.tables.terrain))
     return jnp.where(differs, energy, jnp.nan)
 
@@ -197,7 +206,8 @@ def step(apex, key, k, world: World, config: RunConfig, controller=None,
         found, u, a = config.model.decide(measured, world.tables, world.hopper)
     else:
         found, u, a = controller(measured, k, world)
-    energy = _stance_energy(true_apex, u, a, heights, world, config, adaptive)
+    wind = control.observer.wind if adaptive and config.model.observes else None
+    energy = _stance_energy(true_apex, u, a, heights, world, config, adaptive, wind)
     nxt, s_code, foot = config.model.stride(true_apex, u, world.terrain, world.hopper,
                                             dist.wind, energy)
     s_code = stride_code(nxt, s_code, foot, world)
@@ -209,7 +219,7 @@ def step(apex, key, k, world: World, config: RunConfig, controller=None,
     if adaptive:
         # The foothold's height is sensed at touchdown (leg geometry).
         control = control._replace(
-            observer=after_stride(control.observer, measured, u, foot[1], ok),
+            observer=after_stride(control.observer, measured, u, foot[1], ok, energy),
             recoveries=control.recoveries + (stepping & recovered).astype(jnp.int32),
             footholds=remember(control.footholds, foot, ok, k))
     return Step(code, stepping, ok, nxt, foot, a, control)

@@ -192,8 +192,11 @@ def ascent(p_lo, v_lo, hopper: Hopper, wind=0.0):
                       v_lo[0] + wind * t_up])
 
 
-def flat_touchdown(apex, th_td, h, hopper: Hopper):
+def flat_touchdown(apex, th_td, h, hopper: Hopper, wind=None):
     """Descent to a flat foothold at `h` with the foot at `COM + rho0 (sin th, -cos th)`.
+
+    `wind`: a horizontal acceleration in the descent (`None`: none, the windless expressions
+    as they are).
 
     Returns:
         `(y_foot, v_td, reached)`; `reached` is False when the foot starts below `h`.
@@ -201,25 +204,33 @@ def flat_touchdown(apex, th_td, h, hopper: Hopper):
     y, z, ydot = apex
     drop = z - h - hopper.rho0 * jnp.cos(th_td)
     t_d = safe_sqrt(2.0 * drop / hopper.g)
-    y_foot = y + ydot * t_d + hopper.rho0 * jnp.sin(th_td)
-    return y_foot, jnp.stack([ydot, -hopper.g * t_d]), drop >= 0
+    if wind is None:
+        y_foot = y + ydot * t_d + hopper.rho0 * jnp.sin(th_td)
+        return y_foot, jnp.stack([ydot, -hopper.g * t_d]), drop >= 0
+    y_foot = y + ydot * t_d + 0.5 * wind * t_d**2 + hopper.rho0 * jnp.sin(th_td)
+    return y_foot, jnp.stack([ydot + wind * t_d, -hopper.g * t_d]), drop >= 0
 
 
-def slip_apex_map(apex, u, h, hopper: Hopper, tol: Tolerances = STRIDE_TOL):
-    """SLIP apex return map over flat ground at height `h` (no walls, no wind).
+def slip_apex_map(apex, u, h, hopper: Hopper, tol: Tolerances = STRIDE_TOL, wind=None,
+                  energy=None):
+    """SLIP apex return map over flat ground at height `h` (no walls).
 
     Arguments:
         apex: `(y, z, ydot)`, world frame.
         u: `(th_td, kc, kd)`.
         h: foothold height.
+        wind: horizontal acceleration in both flight phases (`None`: none).
+        energy: as in `slip_stride`: a finite target apex energy replaces `kd` by
+            `bottom_kd` at the bottom of the stance.
 
     Returns:
         `(next_apex, code)`.
     """
     th, kc, kd = u
-    y_foot, v_td, reached = flat_touchdown(apex, th, h, hopper)
-    st = stance(th, v_td, kc, kd, hopper, tol)
-    nxt = ascent(st.p_lo + jnp.stack([y_foot, h]), st.v_lo, hopper)
+    y_foot, v_td, reached = flat_touchdown(apex, th, h, hopper, wind)
+    st = stance(th, v_td, kc, kd, hopper, tol, energy, h)
+    nxt = ascent(st.p_lo + jnp.stack([y_foot, h]), st.v_lo, hopper,
+                 0.0 if wind is None else wind)
     code = jnp.where(~reached, COLLISION, jnp.where(st.code != OK, st.code,
                                                     jnp.where(st.v_lo[1] > 0, OK, COLLISION)))
     return nxt, code

@@ -37,6 +37,7 @@ import jax.numpy as jnp
 import optax
 import optimistix as optx
 
+from ._bhop import safe_sqrt
 from ._flight import OK, touchdown
 from ._params import Hopper
 from ._slip import (
@@ -77,15 +78,41 @@ def kc_limits(hopper: Hopper):
     return KAPPA_LO * scale, KAPPA_HI * scale
 
 
-def energy_kd(apex, goal, kc, rho_b, hopper: Hopper):
-    """Decompression stiffness that gives the goal's energy (eq 12)."""
+def energy_kd(apex, goal, kc, rho_b, hopper: Hopper, ydot_td=None, ydot_lo=None):
+    """Decompression stiffness that gives the goal's energy (eq 12).
+
+    With a horizontal flight acceleration `a` (wind), flight does work on the body: the
+    energy arrives at touchdown with the horizontal velocity `ydot_td = ydot + a t_d`, and
+    a rise of `t_up` reaches the goal's `(z, ydot)` from liftoff only with the liftoff
+    energy `m g z* + m ydot_lo^2 / 2` with `ydot_lo = ydot* - a t_up`. `ydot_td` and
+    `ydot_lo` replace the apex and goal velocities (`None`: no wind, eq 12 as it is).
+    """
     m, g = hopper.m, hopper.g
-    gain = m * (goal[2] ** 2 - apex[2] ** 2) + 2.0 * m * g * (goal[1] - apex[1])
+    ydot = apex[2] if ydot_td is None else ydot_td
+    ydot_goal = goal[2] if ydot_lo is None else ydot_lo
+    gain = m * (ydot_goal ** 2 - ydot ** 2) + 2.0 * m * g * (goal[1] - apex[1])
     return kc + gain / (rho_b - hopper.rho0) ** 2
 
 
-def _trial(apex, goal, h, th, kc, hopper: Hopper, tol: Tolerances, terrain=None):
+def _wind_kd(apex, goal, h, th, kc, x_b, v_td, hopper: Hopper, tol: Tolerances, wind):
+    """Eq 12's `kd` with a wind `a` in flight (`energy_kd`): the rise time `t_up` is first
+    that of a mirrored stance (liftoff at `h + rho0 cos th_td`), then that of the liftoff
+    this first `kd` gives, which leaves an energy error of second order in the change of
+    the liftoff between the two."""
+    z_lo = h + hopper.rho0 * jnp.cos(th)
+    t_up = safe_sqrt(2.0 * (goal[1] - z_lo) / hopper.g)
+    kd = energy_kd(apex, goal, kc, x_b[0], hopper, v_td[0], goal[2] - wind * t_up)
+    x_lo, _ = decompress(x_b, jnp.where(kd > 0, kd, kc), hopper, tol)
+    _, v_lo = _cartesian(x_lo)
+    t_up = jnp.maximum(v_lo[1], 0.0) / hopper.g
+    return energy_kd(apex, goal, kc, x_b[0], hopper, v_td[0], goal[2] - wind * t_up)
+
+
+def _trial(apex, goal, h, th, kc, hopper: Hopper, tol: Tolerances, terrain=None, wind=None):
     """Stride over flat ground with `kd` from eq 12.
+
+    With `wind` (a horizontal flight acceleration; `None`: none), both flight phases fly
+    with it and `kd` comes from `_wind_kd`.
 
     With `terrain`, the foot lands where it meets the terrain (`_flight.touchdown`), on the
     height of that block instead of `h`: a stride planned for a foothold near a block's edge
@@ -98,17 +125,21 @@ def _trial(apex, goal, h, th, kc, hopper: Hopper, tol: Tolerances, terrain=None)
         where the liftoff does not rise), else `-+_FAIL_SPEED` by the side the body fell to
         (a leg far behind the body acts like "too fast"), which keeps it monotone.
     """
-    y_foot, v_td, reached = flat_touchdown(apex, th, h, hopper)
+    y_foot, v_td, reached = flat_touchdown(apex, th, h, hopper, wind)
     if terrain is not None:
         offset = hopper.rho0 * jnp.stack([jnp.sin(th), -jnp.cos(th)])
-        t_code, block, _, y_t, v_t = touchdown(apex, offset, terrain, hopper)
+        t_code, block, _, y_t, v_t = touchdown(apex, offset, terrain, hopper,
+                                               *([] if wind is None else [wind]))
         landed = t_code == OK
         y_foot = jnp.where(landed, y_t, y_foot)
         v_td = jnp.where(landed, v_t, v_td)
         h = jnp.where(landed, terrain.heights[block], h)
         reached = landed
     x_b, code_c = compress(th, v_td, kc, hopper, tol)
-    kd = energy_kd(apex, goal, kc, x_b[0], hopper)
+    if wind is None:
+        kd = energy_kd(apex, goal, kc, x_b[0], hopper)
+    else:
+        kd = _wind_kd(apex, goal, h, th, kc, x_b, v_td, hopper, tol, wind)
     # A non-positive kd cannot push off: the trial runs with kc and counts as failed.
     kd_ok = kd > 0
     x_lo, code_d = decompress(x_b, jnp.where(kd_ok, kd, kc), hopper, tol)
@@ -118,7 +149,8 @@ def _trial(apex, goal, h, th, kc, hopper: Hopper, tol: Tolerances, terrain=None)
     code = jnp.where(reached & kd_ok & (v_lo[1] > 0), code, jnp.maximum(code, 1))
     th_end = jnp.where(code_c != OK, x_b[1], x_lo[1])
     speed = jnp.where(stance_ok, v_lo[0], jnp.where(th_end < 0, _FAIL_SPEED, -_FAIL_SPEED))
-    return ascent(p_lo + jnp.stack([y_foot, h]), v_lo, hopper), code, kd, speed
+    nxt = ascent(p_lo + jnp.stack([y_foot, h]), v_lo, hopper, 0.0 if wind is None else wind)
+    return nxt, code, kd, speed
 
 
 def _c2(nxt, code, goal):
@@ -233,18 +265,18 @@ def _deadbeat_bracket(apex, goal, h, hopper, tol, n_scan=KC_SCAN):
     return _inner_th(apex, goal, h, kc, hopper, tol)[0], kc
 
 
-def _residual(p, apex, goal, h, hopper, tol, terrain=None):
+def _residual(p, apex, goal, h, hopper, tol, terrain=None, wind=None):
     # A non-finite point runs a benign stride and counts as failed: a stance started from
     # NaN would run diffrax to MAX_STEPS, and under vmap stall every other lane.
     finite = jnp.all(jnp.isfinite(p))
     th, s = jnp.where(finite, p, 0.0)
     kc_lo, kc_hi = kc_limits(hopper)
     nxt, code, *_ = _trial(apex, goal, h, th, kc_lo + s * (kc_hi - kc_lo), hopper, tol,
-                           terrain)
+                           terrain, wind)
     return jnp.where((code == OK) & finite, nxt - goal, 1e3)
 
 
-def _initial_guesses(apex, goal, h, hopper, tol, terrain=None):
+def _initial_guesses(apex, goal, h, hopper, tol, terrain=None, wind=None):
     """Starts of the gradient solver: the best `th_td` of a coarse grid for each of a few `s`.
 
     One start per `s` row, because C2 can have two valleys in `kc` (strides that reverse the
@@ -254,7 +286,7 @@ def _initial_guesses(apex, goal, h, hopper, tol, terrain=None):
     weights = jnp.array([W_POS, W_POS, W_VEL])
 
     def cost(p):
-        return jnp.sum(weights * _residual(p, apex, goal, h, hopper, tol, terrain) ** 2)
+        return jnp.sum(weights * _residual(p, apex, goal, h, hopper, tol, terrain, wind) ** 2)
 
     costs = jax.vmap(jax.vmap(cost))(jnp.stack([ths, ss], axis=-1))
     best = jnp.argmin(costs, axis=1)
@@ -272,7 +304,7 @@ def _initial_guesses(apex, goal, h, hopper, tol, terrain=None):
         def body(_, b):
             lo, hi = b
             mid = 0.5 * (lo + hi)
-            fast = _trial(apex, goal, h, mid, kc, hopper, tol, terrain)[3] > goal[2]
+            fast = _trial(apex, goal, h, mid, kc, hopper, tol, terrain, wind)[3] > goal[2]
             return jnp.where(fast, mid, lo), jnp.where(fast, hi, mid)
 
         lo, hi = jax.lax.fori_loop(0, START_BISECTIONS, body, (jnp.asarray(TH_LO, float),
@@ -285,7 +317,7 @@ def _initial_guesses(apex, goal, h, hopper, tol, terrain=None):
 
 
 def _deadbeat_gradient(apex, goal, h, hopper, tol, max_iter=16, cost_tol=1e-16,
-                       terrain=None):
+                       terrain=None, wind=None):
     """Damped Gauss-Newton on C2 over `p = (th_td, s)`; optax applies the steps.
 
     The Jacobian of the weighted apex error comes from forward-mode differentiation through
@@ -296,7 +328,7 @@ def _deadbeat_gradient(apex, goal, h, hopper, tol, max_iter=16, cost_tol=1e-16,
     sqrt_w = jnp.sqrt(jnp.array([W_POS, W_POS, W_VEL]))
 
     def residual(p):
-        r = sqrt_w * _residual(p, apex, goal, h, hopper, tol, terrain)
+        r = sqrt_w * _residual(p, apex, goal, h, hopper, tol, terrain, wind)
         return r, r
 
     opt = optax.chain(optax.clip(MAX_STEP), optax.sgd(1.0))
@@ -334,14 +366,14 @@ def _deadbeat_gradient(apex, goal, h, hopper, tol, max_iter=16, cost_tol=1e-16,
         best, _, _, cost, *_ = jax.lax.while_loop(cond, body, carry)
         return best, cost
 
-    ends, costs = jax.vmap(solve)(_initial_guesses(apex, goal, h, hopper, tol, terrain))
+    ends, costs = jax.vmap(solve)(_initial_guesses(apex, goal, h, hopper, tol, terrain, wind))
     best = ends[jnp.argmin(costs)]
     kc_lo, kc_hi = kc_limits(hopper)
     return best[0], kc_lo + best[1] * (kc_hi - kc_lo)
 
 
 def deadbeat_slip(apex, goal, h, hopper: Hopper, method: str = "gradient",
-                  tol: Tolerances = SEARCH_TOL, terrain=None):
+                  tol: Tolerances = SEARCH_TOL, terrain=None, wind=None):
     """Position-aware SLIP deadbeat controls taking `apex` to `goal` over a foothold at `h`.
 
     Arguments:
@@ -352,6 +384,9 @@ def deadbeat_slip(apex, goal, h, hopper: Hopper, method: str = "gradient",
         tol: integration tolerances of the trial strides.
         terrain: `"gradient"` only: plan each trial stride on the block its foot lands on
             in this map (the execution controller passes the planner's map), not on `h`.
+        wind: `"gradient"` only: a horizontal flight acceleration the strides are inverted
+            with (the adaptive controller's estimate; `None`: the windless deadbeat as it
+            is). `kd` then balances the work the wind does in flight (`energy_kd`).
 
     Returns:
         `(u, ok)`: `u = (th_td, kc, kd)` clipped to the control limits; `ok` when
@@ -361,12 +396,14 @@ def deadbeat_slip(apex, goal, h, hopper: Hopper, method: str = "gradient",
         ValueError: an unknown `method`.
     """
     if method == "bracket":
+        if wind is not None:
+            raise ValueError("the bracket solver is windless; use method='gradient'")
         th, kc = _deadbeat_bracket(apex, goal, h, hopper, tol)
     elif method == "gradient":
-        th, kc = _deadbeat_gradient(apex, goal, h, hopper, tol, terrain=terrain)
+        th, kc = _deadbeat_gradient(apex, goal, h, hopper, tol, terrain=terrain, wind=wind)
     else:
         raise ValueError(f"method must be 'bracket' or 'gradient', got {method!r}")
-    _, code, kd, _ = _trial(apex, goal, h, th, kc, hopper, tol, terrain)
+    _, code, kd, _ = _trial(apex, goal, h, th, kc, hopper, tol, terrain, wind)
     kc_lo, kc_hi = kc_limits(hopper)
     kc_c = jnp.clip(kc, kc_lo, kc_hi)
     kd_c = jnp.clip(kd, RATIO_LO * kc_c, RATIO_HI * kc_c)

@@ -144,3 +144,77 @@ def test_controller_option_is_checked():
 
     with pytest.raises(InputError):
         RunConfig(goal=jnp.zeros(3), controller="smart")
+
+
+# --- SLIP: the same observer and a wind-aware deadbeat through diffrax ----------------------
+
+MG = float(HOP.m * HOP.g)
+
+
+def _slip_targets(wind, n, seed):
+    """Apexes and the apexes that random admissible SLIP controls reach from them over flat
+    ground at 0 in the `wind`: reachable goals by construction."""
+    from jaxhop._slip import STRIDE_TOL, slip_apex_map
+
+    rng = np.random.default_rng(seed)
+    apex = np.stack([rng.uniform(0, 1, n), rng.uniform(1.1, 1.4, n), rng.uniform(0.5, 2.5, n)],
+                    1)
+    u = np.stack([rng.uniform(0.05, 0.3, n), rng.uniform(20, 40, n) * MG,
+                  rng.uniform(20, 40, n) * MG], 1)
+    fly = jax.jit(jax.vmap(lambda a, c, w: slip_apex_map(a, c, 0.0, HOP, STRIDE_TOL, w),
+                           (0, 0, None)))
+    goal, code = fly(jnp.asarray(apex), jnp.asarray(u), wind)
+    assert np.all(np.asarray(code) == OK)
+    return jnp.asarray(apex), goal, jnp.asarray(u), fly
+
+
+def test_slip_adaptive_deadbeat_reaches_the_goal_in_the_wind():
+    from jaxhop._slip import slip_stride
+    from jaxhop._slip_deadbeat import deadbeat_slip
+
+    wind = 0.3
+    apex, goal, _, fly = _slip_targets(wind, 3, 3)
+    solve = jax.jit(jax.vmap(lambda a, g, w: deadbeat_slip(a, g, 0.0, HOP, wind=w),
+                             (0, 0, None)))
+    u, ok = solve(apex, goal, wind)
+    assert np.all(np.asarray(ok))
+    # The executed stride on a floor, flown in the same wind, ends on the goal.
+    nxt, code, _ = jax.vmap(lambda a, c: slip_stride(a, c, FLOOR, HOP, wind))(apex, u)
+    assert np.all(np.asarray(code) == OK)
+    assert np.max(np.abs(np.asarray(nxt - goal))) < 1e-4
+    # Its wind-blind controls (the same solver at wind 0) miss by about the wind's
+    # effect over a flight: more than 0.05 m or m/s.
+    blind, _ = solve(apex, goal, 0.0)
+    missed, _ = fly(apex, blind, wind)
+    assert np.all(np.max(np.abs(np.asarray(missed - goal)), axis=1) > 0.05)
+
+
+def _slip_observer_loop(wind, n, seed):
+    """`n` SLIP strides with random admissible controls in the true `wind`; the observer's
+    estimate after each stride's apex."""
+    from jaxhop._models import SLIP
+    from jaxhop._slip import slip_stride
+
+    rng = np.random.default_rng(seed)
+    update = jax.jit(lambda o, m, s, h: SLIP.observe(o, m, s, h))
+    stride = jax.jit(lambda a, c, w: slip_stride(a, c, FLOOR, HOP, w))
+    obs, apex, sensor = observer_init(), jnp.array([0.0, 1.25, 1.0]), jnp.zeros(3)
+    out = []
+    for _ in range(n):
+        obs = update(obs, apex, sensor, HOP)
+        out.append(float(obs.wind))
+        u = jnp.array([0.085 + rng.uniform(-0.01, 0.01), 30 * MG, 30 * MG])
+        nxt, code, foot = stride(apex, u, wind)
+        assert int(code) == OK
+        obs = after_stride(obs, apex, u, foot[1], True)
+        apex = nxt
+    return np.asarray(out)
+
+
+def test_slip_observer_converges_to_a_constant_wind():
+    est = _slip_observer_loop(-0.2, 5, 0)
+    assert est[0] == 0.0
+    assert np.all(np.abs(est[3:] + 0.2) < 1e-3)
+    # Without wind and without noise the SLIP's integration noise stays below the
+    # observer's floor: the estimate stays exactly 0.
+    assert np.all(_slip_observer_loop(0.0, 4, 0) == 0.0)
