@@ -116,6 +116,27 @@ def observe(obs: Observer, measured, sensor, hopper: Hopper, terms=bhop_terms,
     return obs._replace(wind=wind, var=var, pending=jnp.asarray(False))
 
 
+#: The leg of a spring-leg (SLIP) hopper is placed in flight: its controller measures the
+#: horizontal velocity again after this fraction of the fall from the apex to the map under
+#: it, before it sets the touchdown angle.
+DESCENT_FRACTION = 0.5
+
+
+def observe_descent(obs: Observer, measured_ydot, ydot_descent, t, sensor) -> Observer:
+    """The Kalman update with the horizontal velocity measured `t` seconds into the
+    descent: `(ydot_descent - measured_ydot) / t` measures the wind directly (`H = 1`),
+    with the variance `2 w_v^2 / (3 t^2)` of two uniform velocity errors. `t == 0` (no
+    descent to measure in): the estimate is kept."""
+    t_safe = jnp.where(t > 0, t, 1.0)
+    nu = (ydot_descent - measured_ydot) / t_safe - obs.wind
+    r = 2.0 * sensor[2] ** 2 / (3.0 * t_safe**2) + R_MIN
+    p = obs.var + PROCESS_VAR
+    gain = p / (p + r)
+    use = (t > 0) & jnp.isfinite(nu)
+    return obs._replace(wind=jnp.where(use, obs.wind + gain * nu, obs.wind),
+                        var=jnp.where(use, (1.0 - gain) * p, obs.var))
+
+
 def after_stride(obs: Observer, measured, u, h, completed, energy=None) -> Observer:
     """Record a stride for the next update (only a completed stride is compared).
     `energy`: the target energy its stance used (`None`: none)."""

@@ -25,7 +25,7 @@ import jax.numpy as jnp
 from ._errors import InputError
 from ._foothold import Footholds, corrected_heights, footholds_init, mapped_height, remember
 from ._models import BHOP, Model, model_for, sensed_foothold
-from ._observer import Observer, after_stride, observer_init
+from ._observer import DESCENT_FRACTION, Observer, after_stride, observe_descent, observer_init
 from ._params import Disturbance, Hopper
 from ._plan import PlanTables
 from ._result import Result
@@ -135,15 +135,34 @@ def stride_code(nxt, code, foot, world: World):
     return jnp.where((code == Result.SUCCESS) & (kind > 0), kind, code)
 
 
-def _decide_adaptive(measured, true_apex, world: World, config: RunConfig, control: Control):
+def _descent_measurement(obs: Observer, measured, true_apex, heights, key, world: World):
+    """A leg placed in flight (SLIP): the controller sets the touchdown angle after
+    `DESCENT_FRACTION` of the fall from the apex to its corrected map under it, and
+    measures its horizontal velocity then (with the sensor's noise, a draw of its own) to
+    update the wind estimate (`observe_descent`)."""
+    hop = world.hopper
+    ground = mapped_height(measured[:2], heights, world.tables.terrain)
+    fall = jnp.where(jnp.isfinite(ground), measured[1] - ground - hop.rho0, 0.0)
+    t = DESCENT_FRACTION * jnp.sqrt(2.0 * jnp.maximum(fall, 0.0) / hop.g)
+    noise = jax.random.uniform(key, minval=-1.0, maxval=1.0)
+    sensor = world.disturbance.sensor
+    ydot = true_apex[2] + world.disturbance.wind * t + noise * sensor[2]
+    return observe_descent(obs, measured[2], ydot, t, sensor)
+
+
+def _decide_adaptive(measured, true_apex, world: World, config: RunConfig, control: Control,
+                     key):
     """The adaptive decision: observer update, deadbeat with the estimated wind on the map
     corrected by the sensed footholds (an instantaneous stance with the foothold sensed at
-    its touchdown), recovery. Returns `(found, u, a, recovered, control, heights)`."""
+    its touchdown), recovery. `key`: the draw of a measurement in the descent (SLIP).
+    Returns `(found, u, a, recovered, control, heights)`."""
     obs = control.observer
     model = config.model
     if model.observes:
         obs = model.observe(obs, measured, world.disturbance.sensor, world.hopper)
     heights = corrected_heights(control.footholds, world.tables.terrain)
+    if model.observes and not model.instant_stance:
+        obs = _descent_measurement(obs, measured, true_apex, heights, key, world)
     h_touch = jnp.asarray(jnp.nan)
     if model.instant_stance:
         landed, foot = sensed_foothold(true_apex, model.foot_offset(None, world.hopper),
@@ -200,8 +219,9 @@ def step(apex, key, k, world: World, config: RunConfig, controller=None,
     true_apex = apex.at[0].add(noise[3] * dist.landing) if config.landing else apex
     heights = world.tables.terrain.heights
     if adaptive:
-        found, u, a, recovered, control, heights = _decide_adaptive(measured, true_apex, world,
-                                                                    config, control)
+        descent_key = jax.random.fold_in(jax.random.fold_in(key, k), 1)
+        found, u, a, recovered, control, heights = _decide_adaptive(
+            measured, true_apex, world, config, control, descent_key)
     elif controller is None:
         found, u, a = config.model.decide(measured, world.tables, world.hopper)
     else:
