@@ -218,3 +218,21 @@ def test_slip_observer_converges_to_a_constant_wind():
     # Without wind and without noise the SLIP's integration noise stays below the
     # observer's floor: the estimate stays exactly 0.
     assert np.all(_slip_observer_loop(0.0, 4, 0) == 0.0)
+
+
+def test_descent_measurement_gives_the_wind_before_the_first_touchdown():
+    from jaxhop._observer import observe_descent
+
+    obs = observer_init()
+    # No sensor noise: one velocity change over 0.2 s of descent gives the wind.
+    est = observe_descent(obs, 0.5, 0.5 - 0.2 * 0.2, 0.2, jnp.zeros(3))
+    assert abs(float(est.wind) + 0.2) < 1e-9
+    # With the paper's sensor noise (+-0.05 m/s) one such measurement is worth little
+    # against an estimate already learnt: the gain follows the two variances.
+    learnt = obs._replace(wind=jnp.asarray(-0.2), var=jnp.asarray(1e-4))
+    est = observe_descent(learnt, 0.5, 0.5 - 0.2 * 0.2 + 0.05, 0.2, jnp.full(3, 0.05))
+    r = 2 * 0.05**2 / (3 * 0.2**2)
+    np.testing.assert_allclose(float(est.wind), -0.2 + (1e-4 + 1e-6) / (1e-4 + 1e-6 + r)
+                               * 0.05 / 0.2, rtol=1e-6)
+    # No descent to measure in: the estimate is kept.
+    assert float(observe_descent(learnt, 0.5, 9.0, 0.0, jnp.zeros(3)).wind) == -0.2
