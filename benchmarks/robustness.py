@@ -56,6 +56,9 @@ def main(argv=None):
     import jax
 
     step = args.slip_step if args.model == "slip" else None
+    meta = {"device": f"{os.cpu_count()}-core {platform.machine()} CPU",
+            "jax": jax.__version__, "python": platform.python_version(),
+            "grid_step": step or 0.05, "command": " ".join(sys.argv)}
     rows = []
     with tempfile.TemporaryDirectory() as workdir:
         for noise in args.noise:
@@ -70,12 +73,10 @@ def main(argv=None):
                           f"first-stride failures={r['first_stride_failures']} "
                           f"recoveries={r['recoveries']['total']} {fails} "
                           f"{r['wall_seconds']} s", flush=True)
-    meta = {"device": f"{os.cpu_count()}-core {platform.machine()} CPU",
-            "jax": jax.__version__, "python": platform.python_version(),
-            "grid_step": step or 0.05, "command": " ".join(sys.argv)}
-    if args.out:
-        with open(args.out, "w") as f:
-            json.dump({"meta": meta, "runs": rows}, f, indent=1)
+                    # Written after every sweep: a crash later loses nothing finished.
+                    if args.out:
+                        with open(args.out, "w") as f:
+                            json.dump({"meta": meta, "runs": rows}, f, indent=1)
 
 
 if __name__ == "__main__":
