@@ -56,7 +56,7 @@ class Mechanics:
     hip_omega: float = 40.0
     leg_omega: float = 60.0
     retract: float = 0.85
-    timestep: float = 5e-4
+    timestep: float = 1e-3
     integrator: str = "implicitfast"
     contact_time: float = 2e-3
     solimp: tuple = (0.99, 0.999)

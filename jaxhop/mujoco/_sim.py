@@ -154,9 +154,16 @@ class Simulator:
         """
         m, d = self.model, self.data
         th_td, kc, kd = (float(x) for x in u)
-        qi, vi = self.qi, self.vi
+        iy, iz, ih, il = (self.qi[n] for n in ("y", "z", "hip", "leg"))
+        jy, jz, jh, jl = (self.vi[n] for n in ("y", "z", "hip", "leg"))
         (hp, hv), (lp, lv) = self.hip_gains, self.leg_gains
         retract = (self.mech.retract - 1.0) * self.rho0
+        collapsed = COLLAPSED * self.rho0 - self.rest
+        lifted = LIFTED * self.rho0
+        hole = self.h_min - self.rho0
+        y_lo, y_hi = self.y_range
+        q, v, ctrl, xpos = d.qpos, d.qvel, d.ctrl, d.geom_xpos
+        foot_id, r, g = self.foot, self.r, self.g
         dt = m.opt.timestep
         phase, t_phase, k = DESCENT, 0.0, kc
         foothold = np.full(2, np.nan)
@@ -164,71 +171,67 @@ class Simulator:
         slide = 0.0
         next_rec = d.time
         nan3 = np.full(3, np.nan)
+        fy = fh = 0.0
 
         def out(code, apex=nan3):
             return Stride(int(code), apex, foothold, bottom, slide)
 
         while True:
-            q, v = d.qpos, d.qvel
-            th, lq, thd, lqd = q[qi["hip"]], q[qi["leg"]], v[vi["hip"]], v[vi["leg"]]
             if phase == DESCENT:
-                d.ctrl[0] = hp * (th_td - th) - hv * thd
-                d.ctrl[1] = -lp * lq - lv * lqd
+                ctrl[0] = hp * (th_td - q[ih]) - hv * v[jh]
+                ctrl[1] = -lp * q[il] - lv * v[jl]
             elif phase == ASCENT:
-                d.ctrl[0] = -hp * th - hv * thd
-                d.ctrl[1] = lp * (retract - lq) - lv * lqd
+                ctrl[0] = -hp * q[ih] - hv * v[jh]
+                ctrl[1] = lp * (retract - q[il]) - lv * v[jl]
             else:
-                d.ctrl[0] = 0.0
-                d.ctrl[1] = -k * lq
+                ctrl[0] = 0.0
+                ctrl[1] = -k * q[il]
             mujoco.mj_step(m, d)
             t_phase += dt
             if record is not None and d.time >= next_rec:
-                c = d.geom_xpos[self.foot]
-                record.append((d.time, q[qi["y"]], q[qi["z"]], c[0], c[2] - self.r,
+                record.append((d.time, q[iy], q[iz], xpos[foot_id, 0], xpos[foot_id, 2] - r,
                                phase in (COMPRESSION, DECOMPRESSION)))
                 next_rec += every
-            dist, nz, point, body_hit = self._contacts()
-            touching = dist <= 0.0
-            if body_hit:
+            dist, nz, point, body_hit = self._contacts() if d.ncon else (np.inf, 0.0, None,
+                                                                           False)
+            if body_hit or t_phase > PHASE_T_MAX or q[il] < collapsed:
                 return out(Result.COLLISION)
-            if t_phase > PHASE_T_MAX or self.rest + lq < COLLAPSED * self.rho0:
-                return out(Result.COLLISION)
-            foot = self.foot_point()
             if phase == DESCENT:
-                if touching:
+                if dist <= 0.0:
                     if nz < WALL_NORMAL:
                         return out(Result.COLLISION)
                     phase, t_phase = COMPRESSION, 0.0
                     foothold = np.array([point[0], point[2]])
-                elif foot[1] < self.h_min - self.rho0:
+                    fy, fh = point[0], point[2]
+                elif xpos[foot_id, 2] - r < hole:
                     return out(Result.HOLE)
-                elif not self.y_range[0] <= foot[0] <= self.y_range[1]:
+                elif not y_lo <= xpos[foot_id, 0] <= y_hi:
                     return out(Result.OFF_MAP)
-                continue
-            if phase in (COMPRESSION, DECOMPRESSION):
-                lifted = foot[1] - foothold[1] > LIFTED * self.rho0
-                if touching:
+            elif phase == ASCENT:
+                if dist <= 0.0:
+                    return out(Result.COLLISION)
+                if v[jz] <= 0.0:
+                    # the apex lies within one step before: go back along the parabola
+                    back = v[jz] / g
+                    return out(Result.SUCCESS, np.array([q[iy] + v[jy] * back,
+                                                         q[iz] + 0.5 * v[jz] * back, v[jy]]))
+            else:
+                if dist <= 0.0:
                     slide += self._slip_speed(point) * dt
                     if slide > SLIDE_LIMIT * self.rho0:
                         return out(Result.SLIP)
-                polar = self._polar(foothold)
-                if phase == COMPRESSION and polar[2] >= 0.0:
-                    phase, t_phase, bottom = DECOMPRESSION, 0.0, polar
-                    k = kd if kd_at_bottom is None else float(kd_at_bottom(bottom, foothold))
-                elif phase == DECOMPRESSION and lifted:
-                    if v[vi["z"]] <= 0.0:
+                if phase == COMPRESSION:
+                    # the SLIP's rho' >= 0: the body's velocity along the leg
+                    if (q[iy] - fy) * v[jy] + (q[iz] - fh) * v[jz] >= 0.0:
+                        phase, t_phase, bottom = DECOMPRESSION, 0.0, self._polar(foothold)
+                        if kd_at_bottom is not None:
+                            k = float(kd_at_bottom(bottom, foothold))
+                        else:
+                            k = kd
+                elif xpos[foot_id, 2] - r - fh > lifted:
+                    if v[jz] <= 0.0:
                         return out(Result.COLLISION)
                     phase, t_phase = ASCENT, 0.0
-                continue
-            # ascent
-            if touching:
-                return out(Result.COLLISION)
-            y, z, ydot, zdot = self.body_state()
-            if zdot <= 0.0:
-                # the apex lies within one step before: go back along the parabola
-                back = zdot / self.g
-                return out(Result.SUCCESS, np.array([y + ydot * back,
-                                                     z + 0.5 * zdot**2 / self.g, ydot]))
 
     def _polar(self, foothold) -> np.ndarray:
         """The body's state about the foothold in the SLIP's polar coordinates."""
