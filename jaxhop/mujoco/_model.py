@@ -27,7 +27,7 @@ from .._terrain import Terrain
 
 # Blocks reach this far below the lowest block top (m, times rho0): below the hole depth.
 DEPTH = 1.5
-BODY_RADIUS = 0.1  # times rho0: the body's collision sphere
+BODY_RADIUS = 0.05  # times rho0: the body's collision sphere
 
 
 @dataclass(frozen=True)
@@ -51,11 +51,11 @@ class Mechanics:
 
     leg_mass: float = 0.03
     foot_mass: float = 0.02
-    foot_radius: float = 0.02
+    foot_radius: float = 0.002
     friction: float = 1.0
     hip_omega: float = 40.0
     leg_omega: float = 60.0
-    retract: float = 0.85
+    retract: float = 0.7
     timestep: float = 1e-3
     integrator: str = "implicitfast"
     contact_time: float = 2e-3

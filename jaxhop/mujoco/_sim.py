@@ -9,8 +9,9 @@ A stride runs from an apex to the next apex in four phases (`docs/mujoco.md`):
 - decompression, from the bottom (the rate of the body's distance from the foothold
   crossing zero: the SLIP's `rho'`; the leg joint's own rate also carries the foot's
   vibration on the contact): `kd (rho0 - rho)`;
-- ascent, from the loss of foot contact: the hip servo brings the leg upright, the leg
-  servo retracts it; the stride ends where the body's vertical velocity crosses zero.
+- ascent, from the foot's liftoff: the hip servo holds the leg at its liftoff angle (a
+  leg swung forward low catches the side of a step up), the leg servo retracts it; the
+  stride ends where the body's vertical velocity crosses zero.
 
 The forces are computed in Python each step and applied through two motors. Failures are
 `Result` codes, as jaxhop's stride: `COLLISION` (the body touching a block, the foot
@@ -34,6 +35,7 @@ from .._terrain import Terrain
 from ._model import DEFAULT, IDEAL, Mechanics, hopper_xml
 
 DESCENT, COMPRESSION, DECOMPRESSION, ASCENT = range(4)
+PHASES = ("descent", "compression", "decompression", "ascent")
 #: Sliding of the foot in one stance (times rho0) beyond which the stride fails with `SLIP`.
 SLIDE_LIMIT = 0.01
 #: A foot contact whose normal is less steep than this (its z component) is a wall hit.
@@ -49,13 +51,14 @@ class Stride(NamedTuple):
     """What one stride did: `code` (`Result`), the next apex `(y, z, ydot)` of the body
     (NaN on a failure), the foothold `(y, h)` (NaN before a touchdown), the state at the
     bottom of the stance `(rho, th, rho', th')` relative to the foot (SLIP's polar
-    coordinates) and how far the foot slid (m)."""
+    coordinates), how far the foot slid (m) and, for a failure, what happened."""
 
     code: int
     apex: np.ndarray
     foothold: np.ndarray
     bottom: np.ndarray
     slide: float
+    why: str = ""
 
 
 class Simulator:
@@ -171,17 +174,17 @@ class Simulator:
         slide = 0.0
         next_rec = d.time
         nan3 = np.full(3, np.nan)
-        fy = fh = 0.0
+        fy = fh = th_lo = 0.0
 
-        def out(code, apex=nan3):
-            return Stride(int(code), apex, foothold, bottom, slide)
+        def out(code, why="", apex=nan3):
+            return Stride(int(code), apex, foothold, bottom, slide, why)
 
         while True:
             if phase == DESCENT:
                 ctrl[0] = hp * (th_td - q[ih]) - hv * v[jh]
                 ctrl[1] = -lp * q[il] - lv * v[jl]
             elif phase == ASCENT:
-                ctrl[0] = -hp * q[ih] - hv * v[jh]
+                ctrl[0] = hp * (th_lo - q[ih]) - hv * v[jh]
                 ctrl[1] = lp * (retract - q[il]) - lv * v[jl]
             else:
                 ctrl[0] = 0.0
@@ -195,31 +198,33 @@ class Simulator:
             dist, nz, point, body_hit = self._contacts() if d.ncon else (np.inf, 0.0, None,
                                                                            False)
             if body_hit or t_phase > PHASE_T_MAX or q[il] < collapsed:
-                return out(Result.COLLISION)
+                why = ("body on a block" if body_hit else "leg collapsed"
+                       if q[il] < collapsed else "phase never ended")
+                return out(Result.COLLISION, f"{why} ({PHASES[phase]})")
             if phase == DESCENT:
                 if dist <= 0.0:
                     if nz < WALL_NORMAL:
-                        return out(Result.COLLISION)
+                        return out(Result.COLLISION, "foot hit a block's side")
                     phase, t_phase = COMPRESSION, 0.0
                     foothold = np.array([point[0], point[2]])
                     fy, fh = point[0], point[2]
                 elif xpos[foot_id, 2] - r < hole:
-                    return out(Result.HOLE)
+                    return out(Result.HOLE, "foot fell into a hole")
                 elif not y_lo <= xpos[foot_id, 0] <= y_hi:
-                    return out(Result.OFF_MAP)
+                    return out(Result.OFF_MAP, "foot left the map")
             elif phase == ASCENT:
                 if dist <= 0.0:
-                    return out(Result.COLLISION)
+                    return out(Result.COLLISION, "foot touched a block in ascent")
                 if v[jz] <= 0.0:
                     # the apex lies within one step before: go back along the parabola
                     back = v[jz] / g
-                    return out(Result.SUCCESS, np.array([q[iy] + v[jy] * back,
+                    return out(Result.SUCCESS, "", np.array([q[iy] + v[jy] * back,
                                                          q[iz] + 0.5 * v[jz] * back, v[jy]]))
             else:
                 if dist <= 0.0:
                     slide += self._slip_speed(point) * dt
                     if slide > SLIDE_LIMIT * self.rho0:
-                        return out(Result.SLIP)
+                        return out(Result.SLIP, f"foot slid {slide:.3f} m")
                 if phase == COMPRESSION:
                     # the SLIP's rho' >= 0: the body's velocity along the leg
                     if (q[iy] - fy) * v[jy] + (q[iz] - fh) * v[jz] >= 0.0:
@@ -230,8 +235,8 @@ class Simulator:
                             k = kd
                 elif xpos[foot_id, 2] - r - fh > lifted:
                     if v[jz] <= 0.0:
-                        return out(Result.COLLISION)
-                    phase, t_phase = ASCENT, 0.0
+                        return out(Result.COLLISION, "liftoff without rising")
+                    phase, t_phase, th_lo = ASCENT, 0.0, q[ih]
 
     def _polar(self, foothold) -> np.ndarray:
         """The body's state about the foothold in the SLIP's polar coordinates."""
