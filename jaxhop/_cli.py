@@ -300,16 +300,15 @@ def _run_mujoco(args, terrain, plan, seed, max_steps, tol, disturbance) -> int:
     job = job_for(terrain, plan, DEFAULT, args.controller, disturbance, tol, max_steps, seed)
     r, trajectory = run_recorded(job, np.asarray(args.apex, float))
     steps = r["steps"]
-    ok = steps + (r["code"] == 0)
+    apexes = r["apexes"][np.all(np.isfinite(r["apexes"]), axis=1)]
     out = {"terrain": terrain.name, "model": args.model, "sim": "mujoco", "noise": args.noise,
            "seed": seed, "result": result_name(r["code"]), "why": r["why"], "steps": steps,
-           "apexes": r["apexes"][:ok].tolist(), "footholds": r["footholds"][:steps].tolist(),
+           "apexes": apexes.tolist(), "footholds": r["footholds"][:steps].tolist(),
            "policies": r["policies"][:steps].tolist(), "controller": args.controller,
            "recoveries": r["recoveries"], "trajectory": np.round(trajectory, 6).tolist()}
-    last = r["apexes"][np.all(np.isfinite(r["apexes"]), axis=1)][-1]
     why = f" ({r['why']})" if r["why"] else ""
     print(f"mujoco run on '{terrain.name}' from {args.apex}: {out['result']}{why} after "
-          f"{steps} strides; last apex {np.round(last, 3).tolist()}")
+          f"{steps} strides; last apex {np.round(apexes[-1], 3).tolist()}")
     if args.plot:
         from .mujoco import trajectory_figure
 
