@@ -178,3 +178,26 @@ def test_missing_mujoco_is_one_line_exit_2(capsys, monkeypatch):
     assert main(["run", "--sim", "mujoco"]) == 2
     err = capsys.readouterr().err.strip()
     assert "pip install 'jaxhop[mujoco]'" in err and len(err.splitlines()) == 1
+
+
+@pytest.mark.heavy
+def test_cli_run_and_sweep_with_the_slip_controller(tmp_path, capsys):
+    """`jaxhop run/sweep --sim mujoco` end to end with jaxhop's SLIP decision (a minute of
+    compilation per process)."""
+    import json
+
+    from jaxhop._cli import main
+
+    run = tmp_path / "run.json"
+    assert main(["run", "--sim", "mujoco", "--terrain", "flat", "--apex", "0.5,1.6,0.5",
+                 "--json", str(run), "--plot", str(tmp_path / "run.png")]) == 0
+    r = json.loads(run.read_text())
+    assert r["sim"] == "mujoco" and r["result"] == "success"
+    assert len(r["footholds"]) == r["steps"] and len(r["apexes"]) == r["steps"] + 1
+    traj = np.asarray(r["trajectory"])
+    assert traj.shape[1] == 6 and np.all(np.diff(traj[:, 0]) > 0)
+    sweep = tmp_path / "sweep.json"
+    assert main(["sweep", "--sim", "mujoco", "--terrain", "flat", "--runs", "4",
+                 "--json", str(sweep)]) == 0
+    s = json.loads(sweep.read_text())
+    assert s["n_initial_conditions"] == 4 and "slip" in s["failures"]
