@@ -223,7 +223,8 @@ def cmd_sweep(args) -> int:
         from ._plot import doa_figure
 
         fig = doa_figure(terrain, initial, result["code"], result["steps"], plan.goal,
-                         f"{args.model}, noise {args.noise}")
+                         f"{args.model}{' in MuJoCo' * (args.sim == 'mujoco')}, "
+                         f"noise {args.noise}")
         _save(fig, args.plot)
     _write_json(args.json, out)
     return 0
