@@ -89,8 +89,8 @@ def check_sim(args):
         return
     try:
         import jaxhop.mujoco  # noqa: F401
-    except ImportError as err:  # the package itself raises InputError when mujoco is missing
-        raise InputError(f"--sim mujoco: cannot import the MuJoCo runner ({err})") from None
+    except ImportError as err:  # without mujoco: one line naming the extra
+        raise InputError(f"--sim mujoco: {err}") from None
     if args.model != "slip":
         raise InputError(f"--sim mujoco: the MuJoCo hopper runs the SLIP controller "
                          f"(--model slip), got --model {args.model}")

@@ -9,11 +9,17 @@ idealisation), `hopper_xml` (the MJCF of a hopper over a terrain). Simulation:
 
 from .._errors import InputError as _InputError
 
+
+class MissingExtra(_InputError, ImportError):
+    """The `mujoco` package is not installed: an `ImportError` for Python, a one-line
+    input error (exit status 2) for the command line."""
+
+
 try:
     import mujoco as _mujoco  # noqa: F401
 except ImportError:
-    raise _InputError("the MuJoCo simulator needs the optional extra: pip install "
-                      "'jaxhop[mujoco]'") from None
+    raise MissingExtra("the MuJoCo simulator needs the optional extra: pip install "
+                       "'jaxhop[mujoco]'") from None
 
 from ._model import DEFAULT as DEFAULT
 from ._model import IDEAL as IDEAL
