@@ -24,9 +24,9 @@ def _common(p, model=True, noise=False, models=("bhop",)):
     p.add_argument("--pickbest", default="robust", choices=("robust", "depth", "safety"),
                    help="deployment priority")
     if model:
-        p.add_argument("--model", default="bhop", choices=models,
+        p.add_argument("--model", default=None, choices=models,
                        help="slip: the SLIP model on the BHop plan with the SLIP adjustments "
-                       "(eqs 35-37)")
+                       "(eqs 35-37); default bhop (slip with --sim mujoco)")
     if noise:
         p.add_argument("--noise", default="none", type=A.NOISE,
                        help="none, wind, sensor or ground, or several joined by '+' "
@@ -38,6 +38,9 @@ def _common(p, model=True, noise=False, models=("bhop",)):
         p.add_argument("--controller", default="adaptive", choices=("paper", "adaptive"),
                        help="paper: the paper's controller; adaptive: wind observer, "
                        "wind-aware deadbeat, recovery outside the domains (docs/decisions.md)")
+        p.add_argument("--sim", default="jaxhop", choices=("jaxhop", "mujoco"),
+                       help="mujoco: the runs in the MuJoCo hopper (the extra jaxhop[mujoco], "
+                       "SLIP controller, docs/mujoco.md); jaxhop: jaxhop's own model")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -53,6 +56,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--dz", default="0.05", type=A.DZ)
     p.add_argument("--ydot0", default="0.5", type=A.YDOT0)
     p.add_argument("--plot", default=None, metavar="PATH", help="write the map as PNG")
+    p.add_argument("--runs", default=None, type=A.RUNS,
+                   help="run only N of the grid's states in the global domain, evenly spaced")
     p.add_argument("--checkpoint", default=None, metavar="DIR",
                    help="save finished chunks here; a rerun resumes where it stopped")
     p.add_argument("--chunk", default=None, type=A.CHUNK,
@@ -96,6 +101,7 @@ def main(argv=None) -> int:
     try:
         args = build_parser().parse_args(argv)
         A.check_outputs(args)
+        A.check_sim(args)
         if getattr(args, "distributed", False):
             A.init_distributed(args)
         return int(args.func(args) or 0)
@@ -193,17 +199,23 @@ def cmd_sweep(args) -> int:
             raise InputError(f"--checkpoint: cannot create {args.checkpoint} "
                              f"({err.strerror})") from None
     terrain, plan, seed, max_steps, tol, disturbance, key = _prepare(args)
-    from ._execute import sweep
+    if args.sim == "mujoco":
+        out, initial, result = _sweep_mujoco(args, terrain, plan, seed, max_steps, tol,
+                                             disturbance)
+    else:
+        from ._execute import sweep
 
-    out, initial, result = sweep(plan, key=key, true_terrain=terrain, disturbance=disturbance,
-                                 ydot0=args.ydot0, dy=args.dy, dz=args.dz,
-                                 max_steps=max_steps, tolerance=tol, chunk=args.chunk,
-                                 checkpoint=args.checkpoint, model=args.model,
-                                 progress=True, controller=args.controller)
+        out, initial, result = sweep(plan, key=key, true_terrain=terrain,
+                                     disturbance=disturbance, ydot0=args.ydot0, dy=args.dy,
+                                     dz=args.dz, max_steps=max_steps, tolerance=tol,
+                                     chunk=args.chunk, checkpoint=args.checkpoint,
+                                     model=args.model, progress=True,
+                                     controller=args.controller, runs=args.runs)
     out.update({"terrain": terrain.name, "model": args.model, "noise": args.noise,
-                "seed": seed, "controller": args.controller})
+                "seed": seed, "controller": args.controller, "sim": args.sim})
     fails = ", ".join(f"{k} {v}" for k, v in out["failures"].items() if v) or "none"
-    print(f"sweep on '{terrain.name}' ({args.model}, noise {args.noise}): "
+    print(f"sweep on '{terrain.name}' ({args.model}{', mujoco' * (args.sim == 'mujoco')}, "
+          f"noise {args.noise}): "
           f"{out['n_initial_conditions']} initial apexes, success {out['success_rate']:.4f}, "
           f"mean strides {out['mean_steps']:.2f}, max {out['max_steps']}; failures: {fails} "
           f"({out['seconds']} s)")
@@ -211,10 +223,27 @@ def cmd_sweep(args) -> int:
         from ._plot import doa_figure
 
         fig = doa_figure(terrain, initial, result["code"], result["steps"], plan.goal,
-                         f"{args.model}, noise {args.noise}")
+                         f"{args.model}{' in MuJoCo' * (args.sim == 'mujoco')}, "
+                         f"noise {args.noise}")
         _save(fig, args.plot)
     _write_json(args.json, out)
     return 0
+
+
+def _sweep_mujoco(args, terrain, plan, seed, max_steps, tol, disturbance):
+    import dataclasses
+    import time
+
+    from ._execute import sweep_initial
+    from .mujoco import DEFAULT, job_for, run_many, summarize_runs
+
+    t0 = time.perf_counter()
+    initial = sweep_initial(plan, terrain, args.ydot0, args.dy, args.dz, args.runs)
+    job = job_for(terrain, plan, DEFAULT, args.controller, disturbance, tol, max_steps, seed)
+    result = run_many(job, initial, progress=True)
+    out = summarize_runs(result, time.perf_counter() - t0)
+    out["mechanics"] = dataclasses.asdict(DEFAULT)
+    return out, initial, result
 
 
 def cmd_run(args) -> int:
@@ -228,6 +257,8 @@ def cmd_run(args) -> int:
     if args.animate:
         A.check_animate(args.animate)
     terrain, plan, seed, max_steps, tol, disturbance, key = _prepare(args)
+    if args.sim == "mujoco":
+        return _run_mujoco(args, terrain, plan, seed, max_steps, tol, disturbance)
     r = run_batch(plan, np.asarray([apex]), key=key, true_terrain=terrain,
                   disturbance=disturbance, max_steps=max_steps, tolerance=np.asarray(tol),
                   model=args.model, controller=args.controller)
@@ -253,6 +284,42 @@ def cmd_run(args) -> int:
         try:
             animate_run(terrain, {k: v[0] for k, v in r.items()}, args.animate,
                         goal=plan.goal, model=args.model, wind=float(disturbance.wind))
+        except OSError as err:
+            raise InputError(f"--animate: cannot write {args.animate} "
+                             f"({err.strerror or err})") from None
+    _write_json(args.json, out)
+    return 0
+
+
+def _run_mujoco(args, terrain, plan, seed, max_steps, tol, disturbance) -> int:
+    import numpy as np
+
+    from ._params import has_ground
+    from ._result import result_name
+    from .mujoco import DEFAULT, job_for, run_recorded
+
+    job = job_for(terrain, plan, DEFAULT, args.controller, disturbance, tol, max_steps, seed)
+    r, trajectory = run_recorded(job, np.asarray(args.apex, float))
+    steps = r["steps"]
+    apexes = r["apexes"][np.all(np.isfinite(r["apexes"]), axis=1)]
+    out = {"terrain": terrain.name, "model": args.model, "sim": "mujoco", "noise": args.noise,
+           "seed": seed, "result": result_name(r["code"]), "why": r["why"], "steps": steps,
+           "apexes": apexes.tolist(), "footholds": r["footholds"][:steps].tolist(),
+           "policies": r["policies"][:steps].tolist(), "controller": args.controller,
+           "recoveries": r["recoveries"], "trajectory": np.round(trajectory, 6).tolist()}
+    why = f" ({r['why']})" if r["why"] else ""
+    print(f"mujoco run on '{terrain.name}' from {args.apex}: {out['result']}{why} after "
+          f"{steps} strides; last apex {np.round(apexes[-1], 3).tolist()}")
+    if args.plot:
+        from .mujoco import trajectory_figure
+
+        _save(trajectory_figure(terrain, r, trajectory, plan.goal,
+                                plan.terrain if has_ground(args.noise) else None), args.plot)
+    if args.animate:
+        from .mujoco import animate_trajectory
+
+        try:
+            animate_trajectory(terrain, r, trajectory, args.animate, goal=plan.goal)
         except OSError as err:
             raise InputError(f"--animate: cannot write {args.animate} "
                              f"({err.strerror or err})") from None

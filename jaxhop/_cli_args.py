@@ -74,6 +74,35 @@ DY = v.arg_type(v.positive, "--dy")
 DZ = v.arg_type(v.positive, "--dz")
 YDOT0 = v.arg_type(v.real, "--ydot0", MAX_SPEED)
 CHUNK = v.arg_type(v.count, "--chunk", MAX_CHUNK)
+RUNS = v.arg_type(v.count, "--runs", MAX_CHUNK * 32)
+#: `--noise` kinds a MuJoCo run has (no wind: its flight has no disturbance force).
+MUJOCO_NOISE = ("none", "sensor", "ground")
+
+
+def check_sim(args):
+    """`--sim mujoco`: the extra installed, the SLIP controller, the noise kinds it has and
+    none of the options of jaxhop's batched runs; resolves `--model`'s default."""
+    sim = getattr(args, "sim", "jaxhop")
+    if getattr(args, "model", "") is None:
+        args.model = "slip" if sim == "mujoco" else "bhop"
+    if sim != "mujoco":
+        return
+    try:
+        import jaxhop.mujoco  # noqa: F401
+    except ImportError as err:  # without mujoco: one line naming the extra
+        raise InputError(f"--sim mujoco: {err}") from None
+    if args.model != "slip":
+        raise InputError(f"--sim mujoco: the MuJoCo hopper runs the SLIP controller "
+                         f"(--model slip), got --model {args.model}")
+    bad = [k for k in args.noise.split("+") if k not in MUJOCO_NOISE]
+    if bad:
+        raise InputError(f"--sim mujoco: noise {bad[0]!r} is not simulated in MuJoCo "
+                         f"(choose from {', '.join(MUJOCO_NOISE)})")
+    for flag in ("checkpoint", "chunk"):
+        if getattr(args, flag, None) is not None:
+            raise InputError(f"--{flag}: not available with --sim mujoco")
+    if getattr(args, "distributed", False):
+        raise InputError("--distributed: not available with --sim mujoco")
 
 
 def terrain_and_goal(args):

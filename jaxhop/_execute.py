@@ -235,15 +235,44 @@ def summarize(result: dict, seconds: float) -> dict:
 MAX_GRID = 2_000_000
 
 
+def evenly_spaced(initial: np.ndarray, runs: int | None) -> np.ndarray:
+    """`runs` states of `initial` at evenly spaced positions (first and last included; all
+    of them when `runs` is None or not smaller)."""
+    initial = np.asarray(initial)
+    if runs is None or runs >= initial.shape[0]:
+        return initial
+    if runs < 1:
+        raise InputError(f"runs: must be at least 1, got {runs}")
+    return initial[np.round(np.linspace(0, initial.shape[0] - 1, runs)).astype(int)]
+
+
+def sweep_initial(plan: Plan, true_terrain: Terrain | None = None, ydot0: float = 0.5,
+                  dy: float = 0.05, dz: float = 0.05, runs: int | None = None) -> np.ndarray:
+    """The initial states of a sweep: the grid states (`sweep_grid`) in the global domain,
+    `runs` of them evenly spaced when given.
+
+    Raises:
+        InputError: the grid would exceed `MAX_GRID` states, or no state to run.
+    """
+    grid = sweep_grid(plan.terrain if true_terrain is None else true_terrain, ydot0, dy, dz)
+    if grid.shape[0] > MAX_GRID:
+        raise InputError(f"dy/dz: the grid would exceed {MAX_GRID} initial states")
+    initial = grid[in_global_domain(grid, plan.tables(), plan.hopper)]
+    if initial.shape[0] == 0:
+        raise InputError("no grid state lies in the global domain (is the goal reachable?)")
+    return evenly_spaced(initial, runs)
+
+
 def sweep(plan: Plan, *, initial=None, key=None, true_terrain: Terrain | None = None,
           disturbance: Disturbance | None = None, ydot0: float = 0.5, dy: float = 0.05,
           dz: float = 0.05, max_steps: int = 60, tolerance=None, chunk: int | None = None,
           checkpoint: str | None = None, model: str = "bhop", progress: bool = False,
-          controller: str = "paper"):
+          controller: str = "paper", runs: int | None = None):
     """Domain-of-attraction sweep: run every grid state inside the global domain.
 
     The grid (`sweep_grid`) covers `true_terrain` (default: the plan's map); `initial`
-    replaces it. The other arguments are `run_batch`'s.
+    replaces it. `runs`: only that many of the grid's states, evenly spaced
+    (`sweep_initial`). The other arguments are `run_batch`'s.
 
     Returns:
         `(summary, initial_states, result)`.
@@ -253,12 +282,7 @@ def sweep(plan: Plan, *, initial=None, key=None, true_terrain: Terrain | None = 
     """
     t0 = time.perf_counter()
     if initial is None:
-        grid = sweep_grid(plan.terrain if true_terrain is None else true_terrain, ydot0, dy, dz)
-        if grid.shape[0] > MAX_GRID:
-            raise InputError(f"dy/dz: the grid would exceed {MAX_GRID} initial states")
-        initial = grid[in_global_domain(grid, plan.tables(), plan.hopper)]
-        if initial.shape[0] == 0:
-            raise InputError("no grid state lies in the global domain (is the goal reachable?)")
+        initial = sweep_initial(plan, true_terrain, ydot0, dy, dz, runs)
     result = run_batch(plan, initial, key=key, true_terrain=true_terrain,
                        disturbance=disturbance, max_steps=max_steps, tolerance=tolerance,
                        chunk=chunk, progress=progress, checkpoint=checkpoint, model=model,

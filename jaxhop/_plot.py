@@ -17,7 +17,7 @@ from ._draw import (  # noqa: E402
 )
 from ._models import model_for  # noqa: E402
 from ._plan import Plan  # noqa: E402
-from ._result import RESULT_NAMES  # noqa: E402
+from ._result import RESULT_NAMES, result_name  # noqa: E402
 from ._terrain import Terrain  # noqa: E402
 
 
@@ -146,7 +146,7 @@ def doa_figure(terrain: Terrain, initial: np.ndarray, code: np.ndarray, steps: n
     cmap = ListedColormap(plt.get_cmap("Greens")(np.linspace(0.25, 1.0, 256)))
     sc = ax.scatter(initial[ok, 0], initial[ok, 1], c=steps[ok], cmap=cmap, s=5, marker="s",
                     lw=0, zorder=3)
-    kinds = ", ".join(f"{RESULT_NAMES[c]} {int((code == c).sum())}"
+    kinds = ", ".join(f"{result_name(c)} {int((code == c).sum())}"
                       for c in np.unique(code[~ok]))
     ax.scatter(initial[~ok, 0], initial[~ok, 1], c="tab:red", s=6, marker="s", lw=0, zorder=3,
                label=f"failure ({int((~ok).sum())}{': ' + kinds if kinds else ''})")

@@ -12,7 +12,8 @@ class Result(IntEnum):
     """Outcome of a stride or of a run (`docs/decisions.md`, "Execution").
 
     `RESTRICTED` and `MARGIN` only occur on parkour courses: a touchdown strictly inside a
-    restricted floor area or a margin band next to an obstacle edge.
+    restricted floor area or a margin band next to an obstacle edge. `SLIP` only occurs in
+    MuJoCo runs (`jaxhop.mujoco`): a foot that slid on the ground in stance.
     """
 
     RUNNING = -1
@@ -25,12 +26,16 @@ class Result(IntEnum):
     SOLVER = 6
     RESTRICTED = 7
     MARGIN = 8
+    SLIP = 9
 
 
 #: Failures on a terrain, in code order (code `i + 1` is `FAILURE_NAMES[i]`).
 FAILURE_NAMES = tuple(r.name.lower() for r in Result if Result.SUCCESS < r <= Result.SOLVER)
 #: Failures on a parkour course: the terrain's, then the forbidden touchdowns.
-COURSE_FAILURE_NAMES = tuple(r.name.lower() for r in Result if r > Result.SUCCESS)
+COURSE_FAILURE_NAMES = tuple(r.name.lower() for r in Result
+                             if Result.SUCCESS < r <= Result.MARGIN)
+#: Failures of a MuJoCo run on a terrain: the terrain's and a sliding foot.
+SIM_FAILURE_NAMES = FAILURE_NAMES + (Result.SLIP.name.lower(),)
 #: Names of the codes a run on a terrain can end with, indexed by code.
 RESULT_NAMES = ("success",) + FAILURE_NAMES
 
@@ -41,5 +46,5 @@ def result_name(code: int) -> str:
 
 
 def failure_counts(code, names=FAILURE_NAMES) -> dict:
-    """How many runs ended with each failure of `names` (code `i + 1` for `names[i]`)."""
-    return {name: int((code == i + 1).sum()) for i, name in enumerate(names)}
+    """How many runs ended with each failure of `names` (names of `Result` members)."""
+    return {name: int((code == Result[name.upper()]).sum()) for name in names}

@@ -356,8 +356,62 @@ assert not res.violations
 mppc.plot_run(dyn, res)'''),
 ]
 
+MUJOCO = [
+    ("md", """# Plan in jaxhop, run in MuJoCo
+
+The plans and the reactive SLIP controller of jaxhop drive a hopper simulated by MuJoCo
+(`jaxhop.mujoco`, the extra `jaxhop[mujoco]`): a body of mass `m` with its rotation
+locked, a leg with 3 % of `m` on a hip hinge, a prismatic leg with a 2 % foot, contact
+and friction. At every apex of the body the controller measures its state and returns the
+touchdown angle and the two leg stiffnesses; the runner servoes the leg to the angle in
+the descent and applies the spring force `k (rho0 - rho)` in stance (`docs/mujoco.md`)."""),
+    ("code", '''import os
+
+import jax
+import numpy as np
+
+import jaxhop
+from jaxhop import mujoco as mj
+from jaxhop._execute import sweep_initial
+
+# CI runs the notebooks with JAXHOP_NB_QUICK=1 (fewer runs, in this process).
+QUICK = bool(os.environ.get("JAXHOP_NB_QUICK"))
+terrain = jaxhop.builtin_terrain("reference")
+plan = jaxhop.get_plan(terrain, templates=jaxhop.paper_templates().for_slip(),
+                       progress=False)
+mj.DEFAULT'''),
+    ("md", """## One run
+
+`run_recorded` runs one closed loop in this process and keeps the trajectory (every 10
+ms): the body, the foot, the apexes and the footholds. The first decision compiles the
+SLIP controller (about a minute on a CPU); later ones take tens of milliseconds."""),
+    ("code", '''job = mj.job_for(terrain, plan, max_steps=30 if QUICK else 60)
+run, trajectory = mj.run_recorded(job, np.array([0.6, 1.6, 0.5]))
+print(jaxhop.Result(run["code"]).name.lower(), run["why"], "after", run["steps"], "strides")
+fig = mj.trajectory_figure(terrain, run, trajectory, plan.goal)'''),
+    ("md", """## The same states in both simulators
+
+`sweep_initial(plan, runs=n)` picks `n` evenly spaced states of the sweep grid in the
+global domain (`jaxhop sweep --runs n` does the same). Each runs in MuJoCo (over
+processes, one per core) and in jaxhop's SLIP model, with the same controller and the
+same noise draws."""),
+    ("code", '''states = sweep_initial(plan, runs=4 if QUICK else 64)
+mujoco_runs = mj.run_many(job, states, processes=1 if QUICK else None)
+slip_runs = jaxhop.run_batch(plan, states, model="slip", controller="adaptive",
+                             key=jax.random.key(0))
+for name, r in (("MuJoCo", mujoco_runs), ("jaxhop SLIP", slip_runs)):
+    ok = r["code"] == 0
+    print(f"{name:12s} success {ok.mean():.3f}, mean strides {r['steps'][ok].mean():.1f}")
+both = (mujoco_runs["code"] == 0) & (slip_runs["code"] == 0)
+print(f"{both.sum()} of {len(states)} states succeed in both")'''),
+    ("md", """The MuJoCo hopper needs more strides than jaxhop's SLIP: its leg loses energy
+at every touchdown and liftoff, which the controller does not model; it corrects the loss
+at the next apex from the measured state alone."""),
+]
+
 NOTEBOOKS["03_slip"] = SLIP
 NOTEBOOKS["04_parkour"] = PARKOUR
+NOTEBOOKS["06_mujoco"] = MUJOCO
 
 
 def build(out: pathlib.Path = HERE):

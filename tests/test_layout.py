@@ -27,6 +27,7 @@ STAGES = [
     ["_draw", "_plot", "_animate"],
     ["mppc"],
     ["parkour"],
+    ["mujoco"],
     ["_cli_args", "_cli", "_demo"],
 ]
 RANK = {name: i for i, names in enumerate(STAGES) for name in names}

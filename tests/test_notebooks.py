@@ -28,7 +28,9 @@ def test_stored_notebooks_match_make(tmp_path):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.stem)
+# The MuJoCo notebook compiles the SLIP decision in every worker process: minutes.
+@pytest.mark.parametrize("path", [pytest.param(p, marks=pytest.mark.heavy) if "mujoco" in p.stem
+                                  else p for p in NOTEBOOKS], ids=lambda p: p.stem)
 def test_notebook_runs(path, monkeypatch):
     nbformat = pytest.importorskip("nbformat")
     nbclient = pytest.importorskip("nbclient")

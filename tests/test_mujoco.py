@@ -1,0 +1,203 @@
+"""The MuJoCo hopper against jaxhop's SLIP: one simulator is the other's reference."""
+
+import numpy as np
+import pytest
+
+pytest.importorskip("mujoco")
+
+from jaxhop import Hopper, make_terrain  # noqa: E402
+from jaxhop._result import Result  # noqa: E402
+from jaxhop._slip import slip_strides  # noqa: E402
+from jaxhop.mujoco import IDEAL, Mechanics, Simulator, hopper_xml  # noqa: E402
+
+HOPPER = Hopper()
+FLAT = make_terrain([(-20.0, 20.0, 0.0)], name="flat")
+
+
+def _admissible_strides(n, seed):
+    """`n` random strides on flat ground that jaxhop's SLIP completes to an apex at least
+    5 cm above a vertical leg: `(apex, u, next_apex)`."""
+    rng = np.random.default_rng(seed)
+    m = 4 * n
+    weight = HOPPER.m * HOPPER.g / HOPPER.rho0
+    apex = np.stack([rng.uniform(-1.0, 1.0, m), rng.uniform(1.1, 1.6, m),
+                     rng.uniform(-0.5, 2.0, m)], axis=1)
+    kc = rng.uniform(10.0, 40.0, m) * weight
+    u = np.stack([rng.uniform(-0.1, 0.45, m), kc, kc * rng.uniform(0.7, 1.5, m)], axis=1)
+    nxt, code, _ = slip_strides(apex, u, FLAT, HOPPER)
+    keep = np.nonzero((code == 0) & (nxt[:, 1] > 1.05))[0][:n]
+    assert keep.size == n
+    return apex[keep], u[keep], nxt[keep]
+
+
+@pytest.mark.slow
+def test_ideal_mujoco_stride_agrees_with_slip_stride():
+    apex, u, expect = _admissible_strides(50, seed=21)
+    sim = Simulator(HOPPER, FLAT, IDEAL)
+    got = []
+    for a, c in zip(apex, u):
+        sim.reset(a, c[0])
+        s = sim.stride(c)
+        assert s.code == Result.SUCCESS
+        got.append(s.apex)
+    err = np.abs(np.asarray(got) - expect)
+    assert np.max(err[:, :2]) < 5e-3, np.max(err[:, :2], axis=0)
+    assert np.max(err[:, 2]) < 0.02, np.max(err[:, 2])
+
+
+def test_model_masses_and_geometry():
+    mech = Mechanics()
+    sim = Simulator(HOPPER, FLAT, mech)
+    total = sim.model.body_subtreemass[sim.model.body("body").id]
+    assert total == pytest.approx(HOPPER.m * (1 + mech.leg_mass + mech.foot_mass), rel=1e-9)
+    sim.reset([0.0, 1.5, 0.0], th=0.3)
+    foot = sim.foot_point()
+    # the foot's centre is rho0 - r from the hip along the leg, 0.3 rad ahead
+    r = mech.foot_radius * HOPPER.rho0
+    assert foot[0] == pytest.approx((HOPPER.rho0 - r) * np.sin(0.3), abs=1e-12)
+    assert foot[1] == pytest.approx(1.5 - (HOPPER.rho0 - r) * np.cos(0.3) - r, abs=1e-12)
+    assert hopper_xml(HOPPER, FLAT, mech).count('type="box"') == 1
+
+
+def _stride(terrain, apex, u, mech=None):
+    sim = Simulator(HOPPER, terrain, Mechanics() if mech is None else mech)
+    sim.reset(np.asarray(apex, float), u[0])
+    return sim.stride(u)
+
+
+KC = 25 * HOPPER.m * HOPPER.g / HOPPER.rho0
+
+
+@pytest.mark.parametrize("blocks, apex, u, code, why", [
+    # the foot falls into the gap between two blocks
+    ([(-5.0, 0.0, 0.0), (1.0, 5.0, 0.0)], [0.3, 1.5, 0.5], [0.2, KC, KC], Result.HOLE, "hole"),
+    # the foot leaves the map's end
+    ([(-5.0, 0.5, 0.0)], [0.3, 1.5, 0.5], [0.2, KC, KC], Result.OFF_MAP, "map"),
+    # the foot meets the side of a block 0.5 m higher
+    ([(-5.0, 0.5, 0.0), (0.5, 5.0, 0.5)], [0.2, 1.35, 1.0], [0.2, KC, KC], Result.COLLISION,
+     "side"),
+    # the body lands on a block: the COM descends onto a high step behind a long leg
+    ([(-5.0, 0.4, 0.0), (0.4, 5.0, 0.9)], [0.0, 1.6, 1.5], [-0.3, KC, KC], Result.COLLISION,
+     "body"),
+])
+def test_stride_failures_are_result_codes(blocks, apex, u, code, why):
+    s = _stride(make_terrain(blocks), apex, u)
+    assert s.code == code and why in s.why, (s.code, s.why)
+    assert np.all(np.isnan(s.apex))
+
+
+def test_a_foot_on_ice_slips_and_on_rubber_does_not():
+    apex, u = [0.0, 1.4, 1.5], [0.35, KC, KC]
+    assert _stride(FLAT, apex, u, Mechanics(friction=1.0)).code == Result.SUCCESS
+    s = _stride(FLAT, apex, u, Mechanics(friction=0.05))
+    assert s.code == Result.SLIP and s.slide > 0.01 * HOPPER.rho0
+
+
+def test_mechanics_are_checked():
+    from jaxhop import InputError
+
+    with pytest.raises(InputError, match="friction"):
+        Mechanics(friction=0.0)
+    with pytest.raises(InputError, match="twice the timestep"):
+        Mechanics(timestep=1e-3, contact_time=1e-3)
+
+
+class _Fixed:
+    """A controller with fixed controls, for the runner's loop without a plan."""
+
+    def __init__(self, u, goal):
+        import jax
+
+        from jaxhop.mujoco._run import _noise, _remember
+
+        self.u, self.adaptive = np.asarray(u, float), False
+        self.plan = type("P", (), {"goal": np.asarray(goal, float)})()
+        self.hopper = HOPPER
+        self.tables = type("T", (), {"goals": np.asarray([goal], float), "terrain": FLAT})()
+        self._noise = jax.jit(_noise)
+        self._remember = jax.jit(_remember)
+
+    def decide(self, measured, footholds):
+        return True, self.u, 0, False, np.asarray(FLAT.heights)
+
+
+def test_runner_loop_follows_slip_strides_and_stops():
+    import jax
+
+    from jaxhop.mujoco import run_one
+
+    u = np.array([0.12, KC, 1.1 * KC])
+    ctrl = _Fixed(u, goal=[50.0, 1.3, 0.0])
+    sim = Simulator(HOPPER, FLAT, IDEAL)
+    key = jax.random.key(0)
+    r = run_one(sim, ctrl, [0.0, 1.3, 1.0], 0, key, (0, 0, 0), (0.05, 0.05, 0.05), max_steps=3)
+    assert r["code"] == Result.MAX_STEPS and r["steps"] == 3
+    # each stride of the run is jaxhop's SLIP stride from its apex
+    nxt, code, foot = slip_strides(r["apexes"][:3], np.tile(u, (3, 1)), FLAT, HOPPER)
+    assert np.all(code == 0)
+    np.testing.assert_allclose(r["apexes"][1:], nxt, atol=5e-3)
+    np.testing.assert_allclose(r["footholds"], foot, atol=5e-3)
+    at_goal = run_one(sim, _Fixed(u, goal=[0.0, 1.3, 1.0]), [0.01, 1.3, 1.0], 0, key,
+                      (0, 0, 0), (0.05, 0.05, 0.05), max_steps=3)
+    assert at_goal["code"] == Result.SUCCESS and at_goal["steps"] == 0
+
+
+def test_evenly_spaced_states_keep_both_ends():
+    from jaxhop._execute import evenly_spaced
+
+    states = np.arange(30.0).reshape(10, 3)
+    picked = evenly_spaced(states, 4)
+    np.testing.assert_array_equal(picked[:, 0], [0.0, 9.0, 18.0, 27.0])
+    assert evenly_spaced(states, 10) is states or np.array_equal(evenly_spaced(states, 10),
+                                                                  states)
+    assert evenly_spaced(states, None).shape == (10, 3)
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (["sweep", "--sim", "mujoco", "--noise", "wind"], "not simulated in MuJoCo"),
+    (["run", "--sim", "mujoco", "--model", "bhop"], "--model slip"),
+    (["sweep", "--sim", "mujoco", "--chunk", "8"], "--chunk: not available"),
+    (["sweep", "--runs", "0"], "--runs: must lie in"),
+])
+def test_mujoco_cli_refusals_exit_2(capsys, argv, needle):
+    from jaxhop._cli import main
+
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert needle in err and len(err.splitlines()) == 1
+
+
+def test_missing_mujoco_is_one_line_exit_2(capsys, monkeypatch):
+    import sys
+
+    from jaxhop._cli import main
+
+    for name in [m for m in sys.modules if m == "mujoco" or m.startswith("jaxhop.mujoco")]:
+        monkeypatch.delitem(sys.modules, name)
+    monkeypatch.setitem(sys.modules, "mujoco", None)  # `import mujoco` raises ImportError
+    assert main(["run", "--sim", "mujoco"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "pip install 'jaxhop[mujoco]'" in err and len(err.splitlines()) == 1
+
+
+@pytest.mark.heavy
+def test_cli_run_and_sweep_with_the_slip_controller(tmp_path, capsys):
+    """`jaxhop run/sweep --sim mujoco` end to end with jaxhop's SLIP decision (a minute of
+    compilation per process)."""
+    import json
+
+    from jaxhop._cli import main
+
+    run = tmp_path / "run.json"
+    assert main(["run", "--sim", "mujoco", "--terrain", "flat", "--apex", "0.5,1.6,0.5",
+                 "--json", str(run), "--plot", str(tmp_path / "run.png")]) == 0
+    r = json.loads(run.read_text())
+    assert r["sim"] == "mujoco" and r["result"] == "success"
+    assert len(r["footholds"]) == r["steps"] and len(r["apexes"]) == r["steps"] + 1
+    traj = np.asarray(r["trajectory"])
+    assert traj.shape[1] == 6 and np.all(np.diff(traj[:, 0]) > 0)
+    sweep = tmp_path / "sweep.json"
+    assert main(["sweep", "--sim", "mujoco", "--terrain", "flat", "--runs", "4",
+                 "--json", str(sweep)]) == 0
+    s = json.loads(sweep.read_text())
+    assert s["n_initial_conditions"] == 4 and "slip" in s["failures"]
