@@ -80,22 +80,33 @@ def animate_run(terrain: Terrain, run: dict, path: str, rho0: float = 1.0, g: fl
     in `.gif` is written with Pillow, `.mp4` with ffmpeg (`animation_writer`). Returns the
     path written.
     """
-    from matplotlib.animation import FuncAnimation
-
     writer = animation_writer(path, fps)
     apexes = np.asarray(run["apexes"])
     apexes = apexes[np.all(np.isfinite(apexes), axis=1)]
     frames = animation_frames(run, rho0, g, fps, model, wind)
+    title = (f"{model_for(model).name.upper()}: {RESULT_NAMES[int(run['code'])]} in "
+             f"{int(run['steps'])} strides")
+    return write_animation(terrain, frames, path, writer, title, float(np.max(apexes[:, 1])),
+                           goal, dpi)
+
+
+def write_animation(terrain: Terrain, frames, path: str, writer, title: str, top: float,
+                    goal=None, dpi: int = 80, distinct=lambda a, b: a != b) -> str:
+    """Write frames `(com_y, com_z, foot_y, foot_z, in_contact)` over the terrain with
+    `writer` (`animation_writer`): the body, its leg to the foot, and a mark at every
+    foothold, a new one where `distinct(last_mark, foot)`. `top`: the highest body height
+    drawn. Returns `path`."""
+    from matplotlib.animation import FuncAnimation
+
     fig, ax = plt.subplots(figsize=(9, 3.4))
     draw_terrain(ax, terrain)
     if goal is not None:
         ax.plot(goal[0], goal[1], "ko", ms=6, label="global goal")
-    ax.set_ylim(float(np.min(terrain.heights)) - 0.6, float(np.max(apexes[:, 1])) + 0.3)
+    ax.set_ylim(float(np.min(terrain.heights)) - 0.6, top + 0.3)
     (leg,) = ax.plot([], [], color="0.2", lw=2, zorder=6)
     (body,) = ax.plot([], [], "o", color="tab:orange", ms=12, zorder=7)
     (marks,) = ax.plot([], [], "v", color="tab:blue", ms=6, zorder=5, label="footholds")
-    ax.set_title(f"{model_for(model).name.upper()}: {RESULT_NAMES[int(run['code'])]} in "
-                 f"{int(run['steps'])} strides")
+    ax.set_title(title)
     if goal is not None:
         ax.legend(loc="upper left", fontsize=8)
     fig.tight_layout()
@@ -103,7 +114,7 @@ def animate_run(terrain: Terrain, run: dict, path: str, rho0: float = 1.0, g: fl
 
     def draw(i):
         cy, cz, fy, fz, contact = frames[i]
-        if contact and (not contacts or contacts[-1] != (fy, fz)):
+        if contact and (not contacts or distinct(contacts[-1], (fy, fz))):
             contacts.append((fy, fz))
         leg.set_data([cy, fy], [cz, fz])
         body.set_data([cy], [cz])

@@ -51,9 +51,7 @@ def animate_trajectory(terrain: Terrain, run: dict, trajectory: np.ndarray, path
                        goal=None, fps: int = 25, dpi: int = 80) -> str:
     """Write an animation of one run (`.gif` with Pillow, `.mp4` with ffmpeg): the body, its
     leg to the foot and the footholds, sampled from the trajectory at `fps`."""
-    from matplotlib.animation import FuncAnimation
-
-    from .._animate import animation_writer
+    from .._animate import animation_writer, write_animation
 
     writer = animation_writer(path, fps)
     tr = np.asarray(trajectory, float)
@@ -61,32 +59,7 @@ def animate_trajectory(terrain: Terrain, run: dict, trajectory: np.ndarray, path
         raise ValueError("the trajectory is empty")
     times = np.arange(tr[0, 0], tr[-1, 0] + 1e-9, 1.0 / fps)
     rows = tr[np.minimum(np.searchsorted(tr[:, 0], times), tr.shape[0] - 1)]
-    fig, ax = plt.subplots(figsize=(9, 3.4))
-    draw_terrain(ax, terrain)
-    if goal is not None:
-        ax.plot(goal[0], goal[1], "ko", ms=6, label="global goal")
-        ax.legend(loc="upper left", fontsize=8)
-    ax.set_ylim(float(np.min(terrain.heights)) - 0.6, float(np.max(tr[:, 2])) + 0.3)
-    (leg,) = ax.plot([], [], color="0.2", lw=2, zorder=6)
-    (body,) = ax.plot([], [], "o", color="tab:orange", ms=12, zorder=7)
-    (marks,) = ax.plot([], [], "v", color="tab:blue", ms=6, zorder=5)
-    ax.set_title(_title(run))
-    fig.tight_layout()
-    contacts: list[tuple[float, float]] = []
-
-    def draw(i):
-        _, y, z, fy, fz, stance = rows[i]
-        if stance and (not contacts or abs(contacts[-1][0] - fy) > 0.05):
-            contacts.append((fy, fz))
-        leg.set_data([y, fy], [z, fz])
-        body.set_data([y], [z])
-        if contacts:
-            marks.set_data(*zip(*contacts))
-        return leg, body, marks
-
-    anim = FuncAnimation(fig, draw, frames=len(rows), blit=True)
-    try:
-        anim.save(path, writer=writer, dpi=dpi)
-    finally:
-        plt.close(fig)
-    return path
+    # A planted foot still moves a little in contact: one mark per foothold 5 cm apart.
+    frames = [(y, z, fy, fz, bool(stance)) for _, y, z, fy, fz, stance in rows]
+    return write_animation(terrain, frames, path, writer, _title(run), float(np.max(tr[:, 2])),
+                           goal, dpi, distinct=lambda a, b: abs(a[0] - b[0]) > 0.05)
