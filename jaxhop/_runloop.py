@@ -29,6 +29,7 @@ from ._observer import DESCENT_FRACTION, Observer, after_stride, observe_descent
 from ._params import Disturbance, Hopper
 from ._plan import PlanTables
 from ._result import Result
+from ._slip_deadbeat import mirrored_rise_time
 from ._terrain import Terrain
 
 CONTROLLERS = ("paper", "adaptive")
@@ -194,8 +195,7 @@ def _stance_energy(true_apex, u, a, heights, world: World, config: RunConfig, ad
     landed, foot = sensed_foothold(true_apex, config.model.foot_offset(u, hop),
                                    world.terrain, hop, world.disturbance.wind)
     if wind is not None:
-        z_lo = foot[1] + hop.rho0 * jnp.cos(u[0])
-        t_up = jnp.sqrt(jnp.maximum(2.0 * (goal[1] - z_lo) / hop.g, 0.0))
+        t_up = mirrored_rise_time(goal, foot[1], u[0], hop)
         energy = hop.m * (hop.g * goal[1] + 0.5 * (goal[2] - wind * t_up) ** 2)
     differs = landed & (foot[1] != mapped_height(foot, heights, world.tables.terrain))
     return jnp.where(differs, energy, jnp.nan)

@@ -94,13 +94,19 @@ def energy_kd(apex, goal, kc, rho_b, hopper: Hopper, ydot_td=None, ydot_lo=None)
     return kc + gain / (rho_b - hopper.rho0) ** 2
 
 
+def mirrored_rise_time(goal, h, th, hopper: Hopper):
+    """The rise time to the goal's height from the liftoff of a stance mirrored about the
+    vertical (liftoff at `h + rho0 cos th_td`): the first guess of `t_up` where the wind's
+    work in the rise is balanced before the stance has run."""
+    return safe_sqrt(2.0 * (goal[1] - (h + hopper.rho0 * jnp.cos(th))) / hopper.g)
+
+
 def _wind_kd(apex, goal, h, th, kc, x_b, v_td, hopper: Hopper, tol: Tolerances, wind):
     """Eq 12's `kd` with a wind `a` in flight (`energy_kd`): the rise time `t_up` is first
     that of a mirrored stance (liftoff at `h + rho0 cos th_td`), then that of the liftoff
     this first `kd` gives, which leaves an energy error of second order in the change of
     the liftoff between the two."""
-    z_lo = h + hopper.rho0 * jnp.cos(th)
-    t_up = safe_sqrt(2.0 * (goal[1] - z_lo) / hopper.g)
+    t_up = mirrored_rise_time(goal, h, th, hopper)
     kd = energy_kd(apex, goal, kc, x_b[0], hopper, v_td[0], goal[2] - wind * t_up)
     x_lo, _ = decompress(x_b, jnp.where(kd > 0, kd, kc), hopper, tol)
     _, v_lo = _cartesian(x_lo)
