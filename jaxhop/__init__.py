@@ -4,7 +4,16 @@ The pipeline, in order: terrain → models (BHop) → regions → policies / gra
 → execution / sweeps → plots / CLI. Everything public is re-exported here.
 """
 
-import jax as _jax
+import os as _os
+
+# A failed solve is a result code, never an exception that ends a whole batch: equinox's
+# runtime checks inside solves (e.g. a singular linear solve in an event's derivative)
+# give NaN, which the solvers' guards and the result codes then handle
+# (docs/decisions.md, "Errors inside solves"). Without a host callback in them the
+# compiled programs can also be cached on disk.
+_os.environ.setdefault("EQX_ON_ERROR", "nan")
+
+import jax as _jax  # noqa: E402
 
 _jax.config.update("jax_enable_x64", True)
 
@@ -62,3 +71,10 @@ def __getattr__(name):
 
         return getattr(importlib.import_module(_LAZY[name], __name__), name)
     raise AttributeError(f"module 'jaxhop' has no attribute {name!r}")
+
+# Compiled programs are kept on disk beside the plans, so a second process does not
+# compile them again (unless JAX is told to cache elsewhere, or not at all).
+if _jax.config.jax_compilation_cache_dir is None:
+    from ._cache import cache_dir as _cache_dir
+
+    _jax.config.update("jax_compilation_cache_dir", _os.path.join(_cache_dir(), "xla"))

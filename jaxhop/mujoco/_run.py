@@ -182,11 +182,8 @@ def _start(job: Job):
     """A process's simulator and controller."""
     import jax
 
-    from .._cache import cache_dir
     from .._terrain import terrain_from_dict
 
-    jax.config.update("jax_enable_x64", True)
-    jax.config.update("jax_compilation_cache_dir", os.path.join(cache_dir(), "xla"))
     _worker.update(job=job, sim=Simulator(job.plan.hopper, terrain_from_dict(job.terrain),
                                           job.mech),
                    ctrl=Controller(job.plan, job.controller), key=jax.random.key(job.seed))
@@ -216,8 +213,8 @@ def run_many(job: Job, initial, processes: int | None = None, progress: bool = F
     """Run every initial apex of `initial` (`(n, 3)`), run `i` with noise index `i`.
 
     `processes`: worker processes (default: one per core, at most one per run); 1 runs in
-    this process. Each worker compiles the controller once (the XLA cache under the plan
-    cache keeps the compiled code for later sweeps).
+    this process. Each worker compiles the controller once (importing jaxhop turns on the
+    compilation cache under the plan cache, which keeps the compiled code for later sweeps).
 
     Returns:
         dict of NumPy arrays, the fields of `jaxhop.run_batch` and `why`, what ended a failed
