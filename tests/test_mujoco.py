@@ -100,6 +100,9 @@ def test_mechanics_are_checked():
         Mechanics(friction=0.0)
     with pytest.raises(InputError, match="twice the timestep"):
         Mechanics(timestep=1e-3, contact_time=1e-3)
+    with pytest.raises(InputError, match="swing"):
+        Mechanics(swing=-0.1)
+    assert Mechanics(swing=0.0).swing == 0.0
 
 
 class _Fixed:

@@ -42,6 +42,9 @@ class Mechanics:
         hip_omega, leg_omega: natural frequencies (rad/s) of the critically damped hip
             and leg-length servos in flight; their gains scale with the leg's inertia.
         retract: leg length after liftoff, times `rho0` (until the next apex).
+        swing: angle (rad) the hip turns the leg further back after liftoff, against the
+            direction of motion, so that the retracting foot moves away from a step up
+            just ahead of its foothold rather than into it.
         timestep: MuJoCo's step (s); `integrator`: MuJoCo's integrator name.
         contact_time: contact time constant (s) of `solref` (damping ratio 1).
         solimp: the first two numbers of MuJoCo's `solimp` (constraint impedance).
@@ -55,7 +58,8 @@ class Mechanics:
     friction: float = 1.0
     hip_omega: float = 40.0
     leg_omega: float = 60.0
-    retract: float = 0.7
+    retract: float = 0.5
+    swing: float = 0.2
     timestep: float = 1e-3
     integrator: str = "implicitfast"
     contact_time: float = 2e-3
@@ -69,6 +73,8 @@ class Mechanics:
             if not (isinstance(value, (int, float)) and 0 < value < float("inf")):
                 raise InputError(f"mechanics.{name} must be a positive finite number, "
                                  f"got {value!r}")
+        if not (isinstance(self.swing, (int, float)) and 0 <= self.swing < 1.5):
+            raise InputError(f"mechanics.swing must be in [0, 1.5) rad, got {self.swing!r}")
         if self.retract > 1 or self.foot_radius >= 0.5:
             raise InputError("mechanics: retract must be at most 1 and foot_radius below 0.5")
         if self.contact_time < 2 * self.timestep:

@@ -236,7 +236,8 @@ class Simulator:
                 elif xpos[foot_id, 2] - r - fh > lifted:
                     if v[jz] <= 0.0:
                         return out(Result.COLLISION, "liftoff without rising")
-                    phase, t_phase, th_lo = ASCENT, 0.0, q[ih]
+                    phase, t_phase = ASCENT, 0.0
+                    th_lo = q[ih] - np.copysign(self.mech.swing, v[jy])
 
     def _polar(self, foothold) -> np.ndarray:
         """The body's state about the foothold in the SLIP's polar coordinates."""
