@@ -21,6 +21,7 @@ __version__ = "0.2.0"
 
 from ._bhop import bhop_apex_map as bhop_apex_map
 from ._bhop import deadbeat_bhop as deadbeat_bhop
+from ._cache import cache_dir as _cache_dir
 from ._cache import get_plan as get_plan
 from ._deploy import PICKBEST as PICKBEST
 from ._deploy import check_order as check_order
@@ -75,6 +76,4 @@ def __getattr__(name):
 # Compiled programs are kept on disk beside the plans, so a second process does not
 # compile them again (unless JAX is told to cache elsewhere, or not at all).
 if _jax.config.jax_compilation_cache_dir is None:
-    from ._cache import cache_dir as _cache_dir
-
     _jax.config.update("jax_compilation_cache_dir", _os.path.join(_cache_dir(), "xla"))

@@ -187,18 +187,21 @@ def _stance_energy(true_apex, u, a, heights, world: World, config: RunConfig, ad
     (`jaxhop._slip_deadbeat.energy_kd`, with the rise time of a mirrored stance)."""
     goal = world.tables.goals[a]
     hop = world.hopper
-    energy = hop.m * (hop.g * goal[1] + 0.5 * goal[2] ** 2)
+
+    def at_goal_height(ydot):
+        return hop.m * (hop.g * goal[1] + 0.5 * ydot**2)
+
     if config.energy_feedback:
-        return energy
+        return at_goal_height(goal[2])
     if not adaptive or config.model.instant_stance:
         return None
     landed, foot = sensed_foothold(true_apex, config.model.foot_offset(u, hop),
                                    world.terrain, hop, world.disturbance.wind)
+    ydot_lo = goal[2]
     if wind is not None:
-        t_up = mirrored_rise_time(goal, foot[1], u[0], hop)
-        energy = hop.m * (hop.g * goal[1] + 0.5 * (goal[2] - wind * t_up) ** 2)
+        ydot_lo = goal[2] - wind * mirrored_rise_time(goal, foot[1], u[0], hop)
     differs = landed & (foot[1] != mapped_height(foot, heights, world.tables.terrain))
-    return jnp.where(differs, energy, jnp.nan)
+    return jnp.where(differs, at_goal_height(ydot_lo), jnp.nan)
 
 
 def step(apex, key, k, world: World, config: RunConfig, controller=None,
