@@ -58,6 +58,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--plot", default=None, metavar="PATH", help="write the map as PNG")
     p.add_argument("--runs", default=None, type=A.RUNS,
                    help="run only N of the grid's states in the global domain, evenly spaced")
+    p.add_argument("--domain", default=None, choices=("plan", "verified"),
+                   help="initial states: every grid state in the plan's global domain "
+                   "(plan; the default for BHop and MuJoCo), or only those whose first SLIP "
+                   "stride, predicted on the plan's map, ends in it again (verified; the "
+                   "default for --model slip)")
     p.add_argument("--checkpoint", default=None, metavar="DIR",
                    help="save finished chunks here; a rerun resumes where it stopped")
     p.add_argument("--chunk", default=None, type=A.CHUNK,
@@ -210,9 +215,11 @@ def cmd_sweep(args) -> int:
                                      dz=args.dz, max_steps=max_steps, tolerance=tol,
                                      chunk=args.chunk, checkpoint=args.checkpoint,
                                      model=args.model, progress=True,
-                                     controller=args.controller, runs=args.runs)
+                                     controller=args.controller, runs=args.runs,
+                                     verify=_verify(args))
     out.update({"terrain": terrain.name, "model": args.model, "noise": args.noise,
-                "seed": seed, "controller": args.controller, "sim": args.sim})
+                "seed": seed, "controller": args.controller, "sim": args.sim,
+                "domain": "verified" if _verify(args) else "plan"})
     fails = ", ".join(f"{k} {v}" for k, v in out["failures"].items() if v) or "none"
     print(f"sweep on '{terrain.name}' ({args.model}{', mujoco' * (args.sim == 'mujoco')}, "
           f"noise {args.noise}): "
@@ -230,6 +237,13 @@ def cmd_sweep(args) -> int:
     return 0
 
 
+def _verify(args) -> bool:
+    """`--domain`: its default is `verified` for the jaxhop SLIP, `plan` otherwise."""
+    if args.domain is None:
+        return args.model == "slip" and args.sim != "mujoco"
+    return args.domain == "verified"
+
+
 def _sweep_mujoco(args, terrain, plan, seed, max_steps, tol, disturbance):
     import dataclasses
     import time
@@ -238,7 +252,8 @@ def _sweep_mujoco(args, terrain, plan, seed, max_steps, tol, disturbance):
     from .mujoco import DEFAULT, job_for, run_many, summarize_runs
 
     t0 = time.perf_counter()
-    initial = sweep_initial(plan, terrain, args.ydot0, args.dy, args.dz, args.runs)
+    initial = sweep_initial(plan, terrain, args.ydot0, args.dy, args.dz, args.runs,
+                            _verify(args))
     job = job_for(terrain, plan, DEFAULT, args.controller, disturbance, tol, max_steps, seed)
     result = run_many(job, initial, progress=True)
     out = summarize_runs(result, time.perf_counter() - t0)

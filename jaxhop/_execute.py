@@ -246,10 +246,43 @@ def evenly_spaced(initial: np.ndarray, runs: int | None) -> np.ndarray:
     return initial[np.round(np.linspace(0, initial.shape[0] - 1, runs)).astype(int)]
 
 
+def slip_verified(apexes, plan: Plan, *, key=None, goal=None, max_steps: int = 60,
+                  tolerance=None, controller: str = "paper") -> np.ndarray:
+    """Which apexes of the plan's global domain lie in its SLIP domain (`docs/decisions.md`,
+    "SLIP domain of a sweep"): the SLIP controller's first stride from there, without
+    disturbance on the plan's map, completes and ends in the global domain again.
+
+    The stride is the SLIP lane pool's, with the run settings of the sweep it serves
+    (`key, goal, max_steps, tolerance, controller`, as `run_batch`), so that both use one
+    compiled program.
+    """
+    apexes = np.atleast_2d(np.asarray(apexes, float))
+    n = apexes.shape[0]
+    key = jax.random.key(0) if key is None else key
+    config = RunConfig(goal=jnp.asarray(plan.goal if goal is None else goal, float),
+                       tolerance=jnp.full(3, 0.05) if tolerance is None
+                       else jnp.asarray(tolerance, float), max_steps=max_steps,
+                       model=model_for("slip"), controller=controller)
+    tables = plan.tables()
+    consts = (tables, plan.terrain, plan.hopper, Disturbance(), config)
+    nxt = np.full((n, 3), np.nan)
+
+    def on_done(run, fields):
+        nxt[run] = fields[RUN_FIELDS.index("apexes")][1]
+
+    if n:
+        _pool_runs(list(range(n)), apexes, key, consts, config, on_done, strides=1)
+    completed = np.all(np.isfinite(nxt), axis=1)
+    return completed & in_global_domain(np.where(completed[:, None], nxt, 0.0), tables,
+                                        plan.hopper)
+
+
 def sweep_initial(plan: Plan, true_terrain: Terrain | None = None, ydot0: float = 0.5,
-                  dy: float = 0.05, dz: float = 0.05, runs: int | None = None) -> np.ndarray:
-    """The initial states of a sweep: the grid states (`sweep_grid`) in the global domain,
-    `runs` of them evenly spaced when given.
+                  dy: float = 0.05, dz: float = 0.05, runs: int | None = None,
+                  verify: bool | dict = False) -> np.ndarray:
+    """The initial states of a sweep: the grid states (`sweep_grid`) in the global domain
+    (with `verify`, in its SLIP domain: `slip_verified`, with the run settings in `verify`
+    when it is a dict), `runs` of them evenly spaced when given.
 
     Raises:
         InputError: the grid would exceed `MAX_GRID` states, or no state to run.
@@ -258,6 +291,9 @@ def sweep_initial(plan: Plan, true_terrain: Terrain | None = None, ydot0: float 
     if grid.shape[0] > MAX_GRID:
         raise InputError(f"dy/dz: the grid would exceed {MAX_GRID} initial states")
     initial = grid[in_global_domain(grid, plan.tables(), plan.hopper)]
+    if initial.shape[0] and verify:
+        initial = initial[slip_verified(initial, plan,
+                                        **(verify if isinstance(verify, dict) else {}))]
     if initial.shape[0] == 0:
         raise InputError("no grid state lies in the global domain (is the goal reachable?)")
     return evenly_spaced(initial, runs)
@@ -267,12 +303,13 @@ def sweep(plan: Plan, *, initial=None, key=None, true_terrain: Terrain | None = 
           disturbance: Disturbance | None = None, ydot0: float = 0.5, dy: float = 0.05,
           dz: float = 0.05, max_steps: int = 60, tolerance=None, chunk: int | None = None,
           checkpoint: str | None = None, model: str = "bhop", progress: bool = False,
-          controller: str = "paper", runs: int | None = None):
+          controller: str = "paper", runs: int | None = None, verify: bool | None = None):
     """Domain-of-attraction sweep: run every grid state inside the global domain.
 
     The grid (`sweep_grid`) covers `true_terrain` (default: the plan's map); `initial`
     replaces it. `runs`: only that many of the grid's states, evenly spaced
-    (`sweep_initial`). The other arguments are `run_batch`'s.
+    (`sweep_initial`). `verify`: only the states in the plan's SLIP domain
+    (`slip_verified`; default: for `model="slip"`). The other arguments are `run_batch`'s.
 
     Returns:
         `(summary, initial_states, result)`.
@@ -281,8 +318,13 @@ def sweep(plan: Plan, *, initial=None, key=None, true_terrain: Terrain | None = 
         InputError: the grid would exceed `MAX_GRID` states, or no state to run.
     """
     t0 = time.perf_counter()
+    if verify is None:
+        verify = not model_for(model).instant_stance
     if initial is None:
-        initial = sweep_initial(plan, true_terrain, ydot0, dy, dz, runs)
+        settings = dict(key=key, max_steps=max_steps, tolerance=tolerance,
+                        controller=controller)
+        initial = sweep_initial(plan, true_terrain, ydot0, dy, dz, runs,
+                                settings if verify else False)
     result = run_batch(plan, initial, key=key, true_terrain=true_terrain,
                        disturbance=disturbance, max_steps=max_steps, tolerance=tolerance,
                        chunk=chunk, progress=progress, checkpoint=checkpoint, model=model,

@@ -49,10 +49,12 @@ def _lane_batch(pick, treedef, dev):
     return jax.tree_util.tree_unflatten(treedef, jax.device_put(batch, dev)), index, fresh
 
 
-def pool_runs(runs, apex0, key, consts, config: RunConfig, on_done, lanes=POOL_LANES):
+def pool_runs(runs, apex0, key, consts, config: RunConfig, on_done, lanes=POOL_LANES,
+              strides: int | None = None):
     """Run `runs` (indices into `apex0`) through the pool; `on_done(run, fields)` is called
     as each ends, with `fields` in `RUN_FIELDS` order. `consts` are `(tables, true_terrain,
-    hopper, disturbance, config)`.
+    hopper, disturbance, config)`. `strides`: end every run after that many apexes (its
+    code is then `run_result`'s for a run cut off), with the same compiled step.
 
     One host thread per device, all taking runs from one queue: the devices step (and, the
     first time, compile) concurrently, and none waits for another.
@@ -80,11 +82,11 @@ def pool_runs(runs, apex0, key, consts, config: RunConfig, on_done, lanes=POOL_L
             still, ended = [], []
             for slot, (run, _, _) in enumerate(active):
                 mine = [x[slot] for x in leaves]
-                if live[slot]:
+                _, _, steps, k, (apexes, feet, used), control = (
+                    jax.tree_util.tree_unflatten(treedef, mine))
+                if live[slot] and (strides is None or k < strides):
                     still.append((run, mine, False))
                 else:
-                    _, _, steps, _, (apexes, feet, used), control = (
-                        jax.tree_util.tree_unflatten(treedef, mine))
                     ended.append((run, (final[slot], steps, apexes, feet, used,
                                         control.recoveries)))
             active = still

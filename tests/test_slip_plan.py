@@ -212,3 +212,30 @@ def test_slip_reaches_the_goal_where_reversing_goals_made_it_cycle():
     assert np.all(out["code"] == 0), out["code"]
     last = np.array([a[int(s)] for a, s in zip(out["apexes"], out["steps"])])
     assert np.all(np.abs(last - plan.goal) <= 0.05)
+
+
+@pytest.mark.slow
+def test_a_sweeps_slip_domain_keeps_the_states_whose_first_stride_stays_in_the_domain():
+    # In the BHop plan's domains with the SLIP adjustments, but left by the first SLIP
+    # stride: 0.2 m before the map's end moving on at 0.5 m/s (the foot would have to land
+    # past 10 m to turn back) and at the edge over the hole at 4.2 m. The check is the
+    # first stride of whole runs (the paper's controller, no noise) and the domain test of
+    # the apex it reaches.
+    from jaxhop._execute import run_batch, slip_verified
+    from jaxhop._models import in_global_domain
+    from jaxhop._plan import build_plan
+
+    plan = build_plan(builtin_terrain("reference"), None, templates_for("slip"),
+                      progress=False)
+    tables = plan.tables()
+    starts = np.array([[4.0, 1.2, 0.5], [9.8, 1.4, 0.5], [9.8, 1.2, 0.5], [2.0, 1.6, 0.5],
+                       [6.6, 1.8, 0.5]])
+    assert in_global_domain(starts, tables, HOPPER).all()
+    verified = slip_verified(starts, plan)
+    one = run_batch(plan, starts, key=jax.random.key(0), model="slip", controller="paper")
+    nxt = one["apexes"][:, 1]
+    completed = np.all(np.isfinite(nxt), axis=1)
+    expected = completed & in_global_domain(np.where(completed[:, None], nxt, 0.0), tables,
+                                            HOPPER)
+    assert verified.tolist() == expected.tolist()
+    assert verified.tolist() == [False, False, True, True, True]
