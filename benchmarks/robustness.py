@@ -16,6 +16,7 @@ import argparse
 import json
 import os
 import platform
+import subprocess
 import sys
 import tempfile
 import time
@@ -23,16 +24,21 @@ import time
 NOISES = ("none", "wind", "sensor", "ground", "wind+sensor")
 
 
-def sweep_one(model, noise, seed, controller, terrain, step, workdir):
-    from jaxhop._cli import main
-
+def sweep_one(model, noise, seed, controller, terrain, step, workdir, fresh=False):
+    """One `jaxhop sweep`, in this process or (`fresh`) in a process of its own."""
     path = os.path.join(workdir, f"{model}-{noise}-{seed}-{controller}.json")
     argv = ["sweep", "--terrain", terrain, "--model", model, "--noise", noise,
             "--seed", str(seed), "--controller", controller, "--json", path]
     if step is not None:
         argv += ["--dy", str(step), "--dz", str(step)]
     t0 = time.perf_counter()
-    code = main(argv)
+    if fresh:
+        code = subprocess.call([sys.executable, "-c", "import sys; from jaxhop._cli import "
+                                "main; sys.exit(main(sys.argv[1:]))", *argv])
+    else:
+        from jaxhop._cli import main
+
+        code = main(argv)
     if code != 0:
         raise SystemExit(f"jaxhop {' '.join(argv)} exited with {code}")
     with open(path) as f:
@@ -51,11 +57,18 @@ def main(argv=None):
     p.add_argument("--slip-step", type=float, default=0.2,
                    help="grid step (m) of the SLIP sweeps; 0.05 is the full grid")
     p.add_argument("--out", default=None, help="write the results as JSON here")
+    p.add_argument("--fresh", action=argparse.BooleanOptionalAction, default=None,
+                   help="run every sweep in a process of its own (default: for SLIP). Each "
+                   "seed's plan has its own shapes, so the SLIP run loop compiles again "
+                   "for each; in one process the fifth seed exhausted the memory maps that "
+                   "XLA's CPU compiler asks for (vm.max_map_count 65 530). The compiled "
+                   "programs cached on disk keep what a fresh process repeats to tracing.")
     args = p.parse_args(argv)
 
     import jax
 
     step = args.slip_step if args.model == "slip" else None
+    fresh = args.model == "slip" if args.fresh is None else args.fresh
     meta = {"device": f"{os.cpu_count()}-core {platform.machine()} CPU",
             "jax": jax.__version__, "python": platform.python_version(),
             "grid_step": step or 0.05, "command": " ".join(sys.argv)}
@@ -65,7 +78,7 @@ def main(argv=None):
             for seed in args.seeds:
                 for controller in args.controllers:
                     r = sweep_one(args.model, noise, seed, controller, args.terrain, step,
-                                  workdir)
+                                  workdir, fresh)
                     rows.append(r)
                     fails = {k: v for k, v in r["failures"].items() if v}
                     print(f"{args.model:4s} {noise:12s} seed {seed} {controller:8s} "
