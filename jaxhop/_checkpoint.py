@@ -23,7 +23,9 @@ def fingerprint(plan: Plan, apex0, key, true_terrain, disturbance, config, chunk
     from . import __version__
 
     h = hashlib.sha256()
-    for part in (__version__, chunk, config.model.name, config.controller, plan.terrain.blocks(),
+    on = None if config.adaptive_on is None else bool(config.adaptive_on)
+    for part in (__version__, chunk, config.model.name, config.controller, on,
+                 plan.terrain.blocks(),
                  true_terrain.blocks(), plan.goal.tolist(), config.max_steps,
                  [float(plan.hopper.m), float(plan.hopper.g), float(plan.hopper.rho0)]):
         h.update(repr(part).encode())

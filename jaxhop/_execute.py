@@ -28,7 +28,7 @@ from ._plan import Plan
 from ._pool import pool_runs as _pool_runs
 from ._progress import Progress
 from ._result import Result, failure_counts
-from ._runloop import RUN_FIELDS, RunConfig, _batch, run_init, run_result
+from ._runloop import RUN_FIELDS, _batch, run_config, run_init, run_result
 from ._runloop import batch_jit as _batch_jit
 from ._terrain import Terrain
 
@@ -86,10 +86,8 @@ def run_batch(plan: Plan, apex0, *, key=None, true_terrain: Terrain | None = Non
     true_terrain = plan.terrain if true_terrain is None else true_terrain
     disturbance = Disturbance() if disturbance is None else disturbance
     model = model_for(model)
-    config = RunConfig(goal=jnp.asarray(plan.goal if goal is None else goal, float),
-                       tolerance=jnp.full(3, 0.05) if tolerance is None
-                       else jnp.asarray(tolerance, float), max_steps=max_steps, model=model,
-                       energy_feedback=energy_feedback, controller=controller)
+    config = run_config(plan.goal if goal is None else goal, tolerance, max_steps, model,
+                        controller, energy_feedback)
     devices = jax.local_devices()
     if chunk is None:
         full = model.chunk
@@ -259,10 +257,8 @@ def slip_verified(apexes, plan: Plan, *, key=None, goal=None, max_steps: int = 6
     apexes = np.atleast_2d(np.asarray(apexes, float))
     n = apexes.shape[0]
     key = jax.random.key(0) if key is None else key
-    config = RunConfig(goal=jnp.asarray(plan.goal if goal is None else goal, float),
-                       tolerance=jnp.full(3, 0.05) if tolerance is None
-                       else jnp.asarray(tolerance, float), max_steps=max_steps,
-                       model=model_for("slip"), controller=controller)
+    config = run_config(plan.goal if goal is None else goal, tolerance, max_steps, "slip",
+                        controller)
     tables = plan.tables()
     consts = (tables, plan.terrain, plan.hopper, Disturbance(), config)
     nxt = np.full((n, 3), np.nan)

@@ -53,6 +53,12 @@ class RunConfig(eqx.Module):
     `landing`: draw a fourth uniform at every apex and shift the true apex by it times
     `Disturbance.landing` before the descent (the parkour runs' draw); without it three
     uniforms are drawn (sensor noise only) and landings are exact.
+
+    `adaptive_on` (traced; with `controller="adaptive"`): `False` runs the paper's
+    controller through the adaptive controller's program, every addition switched off
+    (`run_config`): both controllers then share one compilation, and without disturbance
+    their runs agree to the last bit (`docs/decisions.md`, "Adaptive controller").
+    `None`: on.
     """
 
     goal: jnp.ndarray
@@ -62,6 +68,25 @@ class RunConfig(eqx.Module):
     energy_feedback: bool = eqx.field(static=True, default=False)
     landing: bool = eqx.field(static=True, default=False)
     controller: str = eqx.field(static=True, default="paper", converter=check_controller)
+    adaptive_on: jnp.ndarray | None = None
+
+
+def run_config(goal, tolerance=None, max_steps: int = 60, model="bhop",
+               controller: str = "paper", energy_feedback: bool = False) -> RunConfig:
+    """The `RunConfig` of a batch of runs. A SLIP's two controllers share the adaptive
+    controller's program, the paper's with its additions switched off (`adaptive_on`): a
+    SLIP decision takes minutes to compile, and the switch keeps the paper's runs the
+    adaptive controller's without disturbance, bit for bit. BHop compiles each controller
+    as it is."""
+    model = model_for(model)
+    shared = not model.instant_stance
+    return RunConfig(goal=jnp.asarray(goal, float),
+                     tolerance=jnp.full(3, 0.05) if tolerance is None
+                     else jnp.asarray(tolerance, float), max_steps=max_steps, model=model,
+                     energy_feedback=energy_feedback,
+                     controller="adaptive" if shared else check_controller(controller),
+                     adaptive_on=jnp.asarray(check_controller(controller) == "adaptive")
+                     if shared else None)
 
 
 class World(eqx.Module):
@@ -159,11 +184,15 @@ def _decide_adaptive(measured, true_apex, world: World, config: RunConfig, contr
     Returns `(found, u, a, recovered, control, heights)`."""
     obs = control.observer
     model = config.model
+    on = config.adaptive_on
     if model.observes:
         obs = model.observe(obs, measured, world.disturbance.sensor, world.hopper)
     heights = corrected_heights(control.footholds, world.tables.terrain)
     if model.observes and not model.instant_stance:
         obs = _descent_measurement(obs, measured, true_apex, heights, key, world)
+    if on is not None:  # switched off: the paper's controller (map, no wind, no recovery)
+        obs = jax.tree.map(lambda new, old: jnp.where(on, new, old), obs, control.observer)
+        heights = jnp.where(on, heights, world.tables.terrain.heights)
     h_touch = jnp.asarray(jnp.nan)
     if model.instant_stance:
         landed, foot = sensed_foothold(true_apex, model.foot_offset(None, world.hopper),
@@ -172,6 +201,9 @@ def _decide_adaptive(measured, true_apex, world: World, config: RunConfig, contr
     found, u, a, recovered = model.decide_adaptive(measured, world.tables, world.hopper,
                                                    obs.wind if model.observes else None,
                                                    heights, h_touch)
+    if on is not None:
+        found = found & (on | ~recovered)
+        recovered = recovered & on
     streak = jnp.where(recovered, control.streak + 1, 0).astype(jnp.int32)
     found = found & (streak <= RECOVERY_STREAK)
     return found, u, a, recovered, control._replace(observer=obs, streak=streak), heights
@@ -201,6 +233,8 @@ def _stance_energy(true_apex, u, a, heights, world: World, config: RunConfig, ad
     if wind is not None:
         ydot_lo = goal[2] - wind * mirrored_rise_time(goal, foot[1], u[0], hop)
     differs = landed & (foot[1] != mapped_height(foot, heights, world.tables.terrain))
+    if config.adaptive_on is not None:
+        differs = differs & config.adaptive_on
     return jnp.where(differs, at_goal_height(ydot_lo), jnp.nan)
 
 

@@ -214,8 +214,37 @@ def test_slip_reaches_the_goal_where_reversing_goals_made_it_cycle():
     assert np.all(np.abs(last - plan.goal) <= 0.05)
 
 
+@pytest.fixture(scope="module")
+def reference_slip_plan():
+    from jaxhop._plan import build_plan
+
+    return build_plan(builtin_terrain("reference"), None, templates_for("slip"),
+                      progress=False)
+
+
 @pytest.mark.slow
-def test_a_sweeps_slip_domain_keeps_the_states_whose_first_stride_stays_in_the_domain():
+def test_without_disturbance_both_slip_controllers_run_alike_to_the_last_bit(
+        reference_slip_plan):
+    # The adaptive controller's additions do nothing without disturbance (the estimate
+    # stays 0, the sensed footholds are the map's, no state needs recovery), and the paper's
+    # SLIP controller runs through the same compiled program with them switched off. From
+    # (5.6, 1.8, 0.5) the two used to start 3.5e-15 apart, and the adaptive run reached the
+    # goal one stride earlier.
+    from jaxhop._execute import run_batch
+
+    starts = np.array([[5.6, 1.8, 0.5], [2.0, 1.6, 0.5], [6.6, 1.8, 0.5]])
+    out = {c: run_batch(reference_slip_plan, starts, key=jax.random.key(0), model="slip",
+                        controller=c) for c in ("paper", "adaptive")}
+    assert (out["paper"]["code"] == 0).all()
+    for field in ("code", "steps", "policies", "recoveries"):
+        np.testing.assert_array_equal(out["paper"][field], out["adaptive"][field])
+    np.testing.assert_array_equal(out["paper"]["apexes"], out["adaptive"]["apexes"])
+    np.testing.assert_array_equal(out["paper"]["footholds"], out["adaptive"]["footholds"])
+
+
+@pytest.mark.slow
+def test_a_sweeps_slip_domain_keeps_the_states_whose_first_stride_stays_in_the_domain(
+        reference_slip_plan):
     # In the BHop plan's domains with the SLIP adjustments, but left by the first SLIP
     # stride: 0.2 m before the map's end moving on at 0.5 m/s (the foot would have to land
     # past 10 m to turn back) and at the edge over the hole at 4.2 m. The check is the
@@ -223,10 +252,8 @@ def test_a_sweeps_slip_domain_keeps_the_states_whose_first_stride_stays_in_the_d
     # the apex it reaches.
     from jaxhop._execute import run_batch, slip_verified
     from jaxhop._models import in_global_domain
-    from jaxhop._plan import build_plan
 
-    plan = build_plan(builtin_terrain("reference"), None, templates_for("slip"),
-                      progress=False)
+    plan = reference_slip_plan
     tables = plan.tables()
     starts = np.array([[4.0, 1.2, 0.5], [9.8, 1.4, 0.5], [9.8, 1.2, 0.5], [2.0, 1.6, 0.5],
                        [6.6, 1.8, 0.5]])
