@@ -79,14 +79,14 @@ def run_config(goal, tolerance=None, max_steps: int = 60, model="bhop",
     adaptive controller's without disturbance, bit for bit. BHop compiles each controller
     as it is."""
     model = model_for(model)
+    controller = check_controller(controller)
     shared = not model.instant_stance
     return RunConfig(goal=jnp.asarray(goal, float),
                      tolerance=jnp.full(3, 0.05) if tolerance is None
                      else jnp.asarray(tolerance, float), max_steps=max_steps, model=model,
                      energy_feedback=energy_feedback,
-                     controller="adaptive" if shared else check_controller(controller),
-                     adaptive_on=jnp.asarray(check_controller(controller) == "adaptive")
-                     if shared else None)
+                     controller="adaptive" if shared else controller,
+                     adaptive_on=jnp.asarray(controller == "adaptive") if shared else None)
 
 
 class World(eqx.Module):
