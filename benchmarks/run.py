@@ -24,9 +24,15 @@ Benchmarks:
   (diffrax, vmapped, chunks of 512 over the CPU devices), twin `solve_ivp` with events in
   a loop over all of them (`--quick`: every 4-th, scaled per item; codes and apexes are
   checked).
-- `slip_deadbeat`: 1 024 deadbeat solves to reachable targets; JAX `vmap(deadbeat_slip)`
-  (Gauss-Newton through diffrax), twin the same iteration with a finite-difference Jacobian
-  on every 32-th target (`--quick`: every 128-th), scaled per item.
+- `slip_table`: the SLIP deadbeat's start table built anew (`jaxhop._slip_table`), time
+  only (the twin reads the same table).
+- `slip_deadbeat`: 1 024 deadbeat solves to reachable targets; JAX `deadbeat_slips` (the
+  table start and Gauss-Newton polish through diffrax, in passes over the targets that
+  missed, the multi-start solver last), beside the multi-start solver alone in the same
+  run; twin the same stages with a finite-difference Jacobian on every 32-th target
+  (`--quick`: every 128-th), scaled per item.
+- `slip_decision`: latency of one SLIP decision (`decide_slip` with the table) for one
+  measured apex, median over 64 sweep states; twin on 8 of them.
 - `slip_sweep`: SLIP runs (`run_batch(plan, initial, model="slip")`) on the BHop plan of
   `reference` from 256 of its 4 470 initial conditions, evenly spaced (`--quick`: 64); the
   twin on 8 of those, scaled per initial condition; per-run outcome and step count
@@ -257,38 +263,124 @@ def bench_slip_strides(quick: bool):
     return entry("slip_strides", f"{n} strides", warm, numpy_s, first - warm, note)
 
 
-def bench_slip_deadbeat(quick: bool):
+def bench_slip_table():
+    from jaxhop._slip_table import DEFAULT_GRID, build_table
+
+    t0 = time.perf_counter()
+    values = build_table(DEFAULT_GRID, progress=False)
+    jax_s = time.perf_counter() - t0
+    done = float(np.isfinite(values[..., 0]).mean())
+    note = (f"the SLIP deadbeat's start table built anew (no cache): "
+            f"{values[..., 0].size} strides of a unit hopper on the grid "
+            f"{DEFAULT_GRID.to_list()} (zeta, nu, eps, th, s), {done:.3f} of them complete; "
+            f"first call, compilation included; no twin (the twin reads the same table)")
+    return entry("slip_table", f"{values[..., 0].size} strides", jax_s, float("nan"), 0.0, note)
+
+
+def slip_targets(n):
+    """`n` reachable SLIP targets: apexes of random admissible strides over flat ground."""
     from jaxhop._slip import slip_apex_map
-    from jaxhop._slip_deadbeat import deadbeat_slip
+
+    apex, u = random_slip_strides(1, 2 * n)
+    goal, code = jax.jit(jax.vmap(slip_apex_map, (0, 0, None, None)))(
+        jnp.asarray(apex), jnp.asarray(u), 0.0, Hopper())
+    keep = np.nonzero(np.asarray(code) == 0)[0][:n]
+    return apex[keep], np.asarray(goal)[keep]
+
+
+def within_1mm(apex, goal, u):
+    """Which controls `u` take `apex` to within 1 mm and 1 mm/s of `goal` (strides at the
+    simulation's tolerance)."""
+    from jaxhop._slip import slip_apex_map
+
+    nxt, code = jax.jit(jax.vmap(slip_apex_map, (0, 0, None, None)))(
+        jnp.asarray(apex), jnp.asarray(u), 0.0, Hopper())
+    err = np.max(np.abs(np.asarray(nxt) - goal), axis=1)
+    return (np.asarray(code) == 0) & (err <= 1e-3)
+
+
+def bench_slip_deadbeat(quick: bool):
+    from jaxhop._slip_deadbeat import deadbeat_slip, deadbeat_slips
+    from jaxhop._slip_table import slip_table
     from jaxhop.reference import _slip as RS
 
     n = 1024
     hopper = Hopper()
-    apex, u = random_slip_strides(1, 2 * n)
-    goal, code = jax.jit(jax.vmap(slip_apex_map, (0, 0, None, None)))(
-        jnp.asarray(apex), jnp.asarray(u), 0.0, hopper)
-    keep = np.nonzero(np.asarray(code) == 0)[0][:n]
-    apex, goal = apex[keep], np.asarray(goal)[keep]
-    fn = jax.jit(jax.vmap(lambda a, g: deadbeat_slip(a, g, 0.0, hopper)))
+    apex, goal = slip_targets(n)
+    table = slip_table(progress=False)
+    first, warm, (ju, jok, stage) = timed(
+        lambda: deadbeat_slips(apex, goal, 0.0, hopper, table), 1 if quick else 2)
+    hit = within_1mm(apex, goal, ju)
+    # The multi-start solver alone (no table), in the same run's terms.
+    multi = jax.jit(jax.vmap(lambda a, g: deadbeat_slip(a, g, 0.0, hopper)))
     ja, jg = jnp.asarray(apex), jnp.asarray(goal)
-    first, warm, (ju, jok) = timed(lambda: fn(ja, jg), 1 if quick else 2)
-    ju, jok = np.asarray(ju), np.asarray(jok)
+    m_first, m_warm, (mu, _) = timed(lambda: multi(ja, jg), 1)
+    m_hit = within_1mm(apex, goal, np.asarray(mu))
     every = 128 if quick else 32
     sub = np.arange(0, n, every)
+    rtab = (np.asarray(table.values), table.grid.to_list())
     t0 = time.perf_counter()
-    ref = [RS.deadbeat_slip(apex[i], goal[i], 0.0, R.Hopper()) for i in sub]
+    ref = [RS.deadbeat_slip(apex[i], goal[i], 0.0, R.Hopper(), table=rtab, full=True)
+           for i in sub]
     numpy_s = (time.perf_counter() - t0) * n / sub.size
     du = np.array([np.max(np.abs(r[0] - ju[i]) / np.maximum(1.0, np.abs(ju[i])))
                    for r, i in zip(ref, sub)])
     same_ok = int(sum(r[1] == jok[i] for r, i in zip(ref, sub)))
+    counts = np.bincount(stage, minlength=4)[1:]
     note = (f"{n} reachable targets (apexes of random strides over flat ground); JAX "
-            f"vmap(deadbeat_slip, 'gradient'); twin: the same Gauss-Newton iteration and "
-            f"starts with a finite-difference Jacobian (scipy solve_ivp strides), timed on "
-            f"every {every}-th target ({sub.size}) and scaled per item; JAX ok "
-            f"{float(jok.mean()):.4f}; on the subsample ok flags equal {same_ok}/{sub.size}, "
-            f"controls' largest relative difference {float(du.max()):.1e} "
+            f"deadbeat_slips: the table start, Gauss-Newton polish through diffrax in "
+            f"stages as passes over the targets that missed (stage 1 {counts[0]}, stage 2 "
+            f"{counts[1]}, stage 3 = multi-start fallback {counts[2]}: rate "
+            f"{counts[2] / n:.4f}); within 1 mm and 1 mm/s: {hit.mean():.4f}; ok "
+            f"{float(jok.mean()):.4f}. The multi-start solver alone (vmap(deadbeat_slip), no "
+            f"table) in the same run: {m_warm:.3f} s warm, compile {m_first - m_warm:.1f} s, "
+            f"within 1 mm {m_hit.mean():.4f}: the table start is "
+            f"{m_warm / warm:.1f}x faster. Twin: the same stages (the same table's values, "
+            f"finite-difference Jacobian, scipy solve_ivp strides), timed on every {every}-th "
+            f"target ({sub.size}) and scaled per item; ok flags equal {same_ok}/{sub.size}, "
+            f"stages equal {int(sum(r[2] == stage[i] for r, i in zip(ref, sub)))}/{sub.size},"
+            f" controls' largest relative difference {float(du.max()):.1e} "
             f"(median {float(np.median(du)):.1e})")
     return entry("slip_deadbeat", f"{n} targets", warm, numpy_s, first - warm, note)
+
+
+def bench_slip_decision(jp):
+    """One SLIP decision (first matches, staged table-start deadbeat, prediction) for one
+    measured apex, as the run loop makes it; latency of a single call."""
+    from jaxhop._models import decide_slip
+
+    tables = jp.tables(slip=True)
+    hopper = Hopper()
+    fn = jax.jit(lambda a: decide_slip(a, tables, hopper))
+    grid = sweep_grid(jp.terrain)
+    initial = grid[jaxhop.in_global_domain(grid, jp.tables(), hopper)]
+    states = initial[np.linspace(0, initial.shape[0] - 1, 64).round().astype(int)]
+    t0 = time.perf_counter()
+    jax.block_until_ready(fn(jnp.asarray(states[0])))
+    first = time.perf_counter() - t0
+    times = []
+    for _ in range(3):
+        for z in states:
+            z = jnp.asarray(z)
+            t0 = time.perf_counter()
+            jax.block_until_ready(fn(z))
+            times.append(time.perf_counter() - t0)
+    rt, rtm = to_reference(jp.terrain, jp.templates)
+    ctrl = R.Controller(reference_plan_with(jp, R.situate(rt, rtm, R.Hopper())),
+                        slip_table=(np.asarray(tables.slip.values), tables.slip.grid.to_list()))
+    ref_times = []
+    for z in states[::8]:
+        t0 = time.perf_counter()
+        ctrl.decide_slip(z)
+        ref_times.append(time.perf_counter() - t0)
+    med, ref_med = float(np.median(times)), float(np.median(ref_times))
+    note = (f"one SLIP decision (decide_slip with the table: first matches, staged deadbeat, "
+            f"predicted stride) on each of 64 evenly spaced initial states of the reference "
+            f"sweep, 3 rounds, one state per call (no batch); median {med * 1e3:.2f} ms, "
+            f"90th percentile {np.percentile(times, 90) * 1e3:.2f} ms, minimum "
+            f"{min(times) * 1e3:.2f} ms; twin (same decision, table start) median "
+            f"{ref_med * 1e3:.0f} ms on 8 of the states")
+    return entry("slip_decision", "1 apex", med, ref_med, first - med, note)
 
 
 def bench_slip_sweep(jp, quick: bool):
@@ -307,7 +399,9 @@ def bench_slip_sweep(jp, quick: bool):
     n_ref = 8
     pick = np.linspace(0, n_jax - 1, n_ref).round().astype(int)
     rt, rtm = to_reference(terrain, jp.templates)
-    ctrl = R.Controller(reference_plan_with(jp, R.situate(rt, rtm, R.Hopper())))
+    tab = jp.tables(slip=True).slip
+    ctrl = R.Controller(reference_plan_with(jp, R.situate(rt, rtm, R.Hopper())),
+                        slip_table=(np.asarray(tab.values), tab.grid.to_list()))
     t0 = time.perf_counter()
     ref = R.run_batch(ctrl, runs[pick], model="slip")
     numpy_s = (time.perf_counter() - t0) * n_jax / n_ref
@@ -338,8 +432,8 @@ def main(argv=None):
     parser.add_argument("--only", default=None,
                         help="comma-separated names of the benchmarks to run (default: all)")
     args = parser.parse_args(argv)
-    names = ("plan_build", "bhop_sweep", "decision", "slip_strides", "slip_deadbeat",
-             "slip_sweep")
+    names = ("plan_build", "bhop_sweep", "decision", "slip_strides", "slip_table",
+             "slip_deadbeat", "slip_decision", "slip_sweep")
     only = names if args.only is None else tuple(args.only.split(","))
     if unknown := set(only) - set(names):
         parser.error(f"--only: unknown {sorted(unknown)}; choose from {', '.join(names)}")
@@ -362,7 +456,7 @@ def main(argv=None):
     if "plan_build" in only:
         plan_entry, jp = bench_plan_build(args.quick)
         report(plan_entry)
-    elif {"bhop_sweep", "decision", "slip_sweep"} & set(only):
+    elif {"bhop_sweep", "decision", "slip_decision", "slip_sweep"} & set(only):
         jp = build_plan(builtin_terrain("reference"), progress=False)
     if "bhop_sweep" in only:
         report(bench_bhop_sweep(jp, args.quick))
@@ -370,8 +464,12 @@ def main(argv=None):
         report(bench_decision(jp))
     if "slip_strides" in only:
         report(bench_slip_strides(args.quick))
+    if "slip_table" in only:
+        report(bench_slip_table())
     if "slip_deadbeat" in only:
         report(bench_slip_deadbeat(args.quick))
+    if "slip_decision" in only:
+        report(bench_slip_decision(jp))
     if "slip_sweep" in only:
         report(bench_slip_sweep(jp, args.quick))
     out = {"device": device_name(), "quick": args.quick, "benchmarks": results, "todo": todo}

@@ -82,10 +82,10 @@ def run_batch(plan: Plan, apex0, *, key=None, true_terrain: Terrain | None = Non
     apex0 = np.atleast_2d(np.asarray(apex0, float))
     n = apex0.shape[0]
     key = jax.random.key(0) if key is None else key
-    tables = plan.tables()
+    model = model_for(model)
+    tables = plan.tables(slip=not model.instant_stance)
     true_terrain = plan.terrain if true_terrain is None else true_terrain
     disturbance = Disturbance() if disturbance is None else disturbance
-    model = model_for(model)
     config = run_config(plan.goal if goal is None else goal, tolerance, max_steps, model,
                         controller, energy_feedback)
     devices = jax.local_devices()
@@ -259,7 +259,7 @@ def slip_verified(apexes, plan: Plan, *, key=None, goal=None, max_steps: int = 6
     key = jax.random.key(0) if key is None else key
     config = run_config(plan.goal if goal is None else goal, tolerance, max_steps, "slip",
                         controller)
-    tables = plan.tables()
+    tables = plan.tables(slip=True)
     consts = (tables, plan.terrain, plan.hopper, Disturbance(), config)
     nxt = np.full((n, 3), np.nan)
 

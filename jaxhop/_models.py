@@ -188,6 +188,37 @@ def decide_bhop(apex, tables: PlanTables, hopper: Hopper, wind=None, heights=Non
 # apex lands within SLIP_ACCEPT of its goal wins, else the smallest scaled miss.
 SLIP_CANDIDATES = 2
 SLIP_ACCEPT = (0.05, 0.05, 0.05)
+# A decision's deadbeat tries the table's further starts where the best one ends with a C2
+# above this (an apex error of 1 mm; `jaxhop._slip_deadbeat._deadbeat_table`).
+SLIP_STAGE_C2 = 1e-6
+
+
+def _first_accepted(one, goals, h, valid):
+    """`one(goal, h, fallback) -> (u, miss)` on the valid candidates in order, each only
+    where every earlier try missed (`miss > 1`): first from the table's starts, then, where
+    all of those missed, with the multi-start solver (`fallback`), keeping the smaller miss
+    per candidate. One while loop: under `vmap` a try costs nothing in a batch whose lanes
+    all accepted an earlier one. Candidates not tried keep `miss = inf`."""
+    n = goals.shape[0]
+    order = jnp.argsort(~valid, stable=True)
+    n_valid = jnp.sum(valid)
+
+    def more(carry):
+        i, _, misses = carry
+        return (i < 2 * n_valid) & jnp.all(misses > 1.0)
+
+    def next_one(carry):
+        i, us, misses = carry
+        fallback = i >= n_valid
+        c = order[jnp.where(fallback, i - n_valid, i)]
+        u, m = one(goals[c], h[c], fallback)
+        better = m < misses[c]
+        return (i + 1, us.at[c].set(jnp.where(better, u, us[c])),
+                misses.at[c].set(jnp.minimum(m, misses[c])))
+
+    carry = (jnp.asarray(0), jnp.zeros((n, 3)), jnp.full((n,), jnp.inf))
+    _, us, misses = jax.lax.while_loop(more, next_one, carry)
+    return us, misses
 
 
 def decide_slip(apex, tables: PlanTables, hopper: Hopper, n_candidates: int = SLIP_CANDIDATES,
@@ -225,14 +256,19 @@ def decide_slip(apex, tables: PlanTables, hopper: Hopper, n_candidates: int = SL
         h = heights[tables.table.seg_block[sit // tables.templates.n]]
         terrain = terrain.with_heights(heights)
 
-    def one(goal, h_):
-        u, ok = deadbeat_slip(apex, goal, h_, hopper, terrain=terrain, wind=wind)
+    def one(goal, h_, fallback=False):
+        u, ok = deadbeat_slip(apex, goal, h_, hopper, terrain=terrain, wind=wind,
+                              table=tables.slip, fallback=fallback, accept=SLIP_STAGE_C2,
+                              multi_only=fallback)
         pred, code, _ = slip_stride(apex, u, terrain, hopper, 0.0 if wind is None else wind,
                                     SEARCH_TOL)
         miss = jnp.max(jnp.abs(pred - goal) / jnp.asarray(SLIP_ACCEPT))
         return u, jnp.where((code == OK) & jnp.all(jnp.isfinite(pred)), miss, jnp.inf)
 
-    u, miss = jax.vmap(one)(goals, h)
+    if tables.slip is None:
+        u, miss = jax.vmap(one)(goals, h)
+    else:
+        u, miss = _first_accepted(one, goals, h, valid)
     miss = jnp.where(valid, miss, jnp.inf)
     good = miss <= 1.0
     pick = jnp.where(jnp.any(good), jnp.argmax(good), jnp.argmin(miss))

@@ -44,6 +44,8 @@ class PlanTables(eqx.Module):
     best_pos: jnp.ndarray
     best_inst: jnp.ndarray
     goals: jnp.ndarray
+    #: The SLIP deadbeat's start table (`jaxhop._slip_table`); `None`: multi-start solves.
+    slip: object = None
 
 
 @dataclasses.dataclass
@@ -102,10 +104,15 @@ class Plan:
         best_inst[has] = self.order[first[has]]
         return best_pos, best_inst
 
-    def tables(self) -> PlanTables:
+    def tables(self, slip: bool = False) -> PlanTables:
+        """The plan's arrays for the jitted controller; with `slip`, the SLIP deadbeat's
+        start table too (built once, then cached on disk: `jaxhop._slip_table`)."""
+        from ._slip_table import slip_table
+
         best_pos, best_inst = self.best_per_situated()
         return PlanTables(self.table(), self.templates, self.terrain, jnp.asarray(best_pos),
-                          jnp.asarray(best_inst), jnp.asarray(self.goals))
+                          jnp.asarray(best_inst), jnp.asarray(self.goals),
+                          slip_table() if slip else None)
 
     def summary(self) -> dict:
         keys = ("n_segments", "n_situated", "n_candidate_pairs", "n_instantiated",

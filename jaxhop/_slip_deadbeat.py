@@ -30,6 +30,8 @@ Two solvers:
 One sample per call; vmap for batches.
 """
 
+import functools
+
 import diffrax
 import equinox as eqx
 import jax
@@ -323,12 +325,21 @@ def _initial_guesses(apex, goal, h, hopper, tol, terrain=None, wind=None):
 
 
 def _deadbeat_gradient(apex, goal, h, hopper, tol, max_iter=16, cost_tol=1e-16,
-                       terrain=None, wind=None):
+                       terrain=None, wind=None, starts=None, min_trust=0.0, stall=0.0):
     """Damped Gauss-Newton on C2 over `p = (th_td, s)`; optax applies the steps.
 
     The Jacobian of the weighted apex error comes from forward-mode differentiation through
     diffrax (`ForwardMode`: two tangents). A trial point that does not lower C2 is rejected
-    and the step scale quartered; an accepted one doubles it (up to a full step).
+    and the step scale quartered; an accepted one doubles it (up to a full step). A start
+    stops after `max_iter` steps (may be traced), at a C2 below `cost_tol`, or once its
+    step scale falls below `min_trust` (only rejected steps shrink it: the trial strides'
+    noise floor), or once an accepted step lowers C2 by less than the fraction `stall` of
+    it (a target out of reach: the polish has found its valley's floor).
+
+    `starts`: `(n, 2)` starting points (default `_initial_guesses`).
+
+    Returns:
+        `(th_td, kc, c2)` of the best end point.
     """
     tol = Tolerances(tol.rtol, tol.atol, diffrax.ForwardMode())
     sqrt_w = jnp.sqrt(jnp.array([W_POS, W_POS, W_VEL]))
@@ -350,36 +361,101 @@ def _deadbeat_gradient(apex, goal, h, hopper, tol, max_iter=16, cost_tol=1e-16,
         return jnp.stack([jnp.clip(p[0], TH_LO, TH_HI), jnp.clip(p[1], 0.0, 1.0)]), state
 
     def cond(carry):
-        best, _, _, cost, _, _, _, i = carry
-        return (i < max_iter) & (cost > cost_tol)
+        best, _, _, cost, _, trust, _, i, flat = carry
+        return (i < max_iter) & (cost > cost_tol) & (trust >= min_trust) & ~flat
 
     def body(carry):
-        best, r_b, jac_b, cost_b, trial, trust, state, i = carry
+        best, r_b, jac_b, cost_b, trial, trust, state, i, _ = carry
         jac, r = jax.jacfwd(residual, has_aux=True)(trial)
-        better = jnp.sum(r**2) < cost_b
+        cost = jnp.sum(r**2)
+        better = cost < cost_b
+        flat = better & (cost_b - cost < stall * cost_b)
         best, r_b, jac_b = (jnp.where(better, new, old) for new, old in
                             ((trial, best), (r, r_b), (jac, jac_b)))
         cost_b = jnp.sum(r_b**2)
         trust = jnp.where(better, jnp.minimum(2.0 * trust, 1.0), 0.25 * trust)
         trial, state = step(best, r_b, jac_b, trust, state)
-        return best, r_b, jac_b, cost_b, trial, trust, state, i + 1
+        return best, r_b, jac_b, cost_b, trial, trust, state, i + 1, flat
 
     def solve(p0):
         jac0, r0 = jax.jacfwd(residual, has_aux=True)(p0)
         state0 = opt.init(p0)
         trial0, state0 = step(p0, r0, jac0, jnp.array(1.0), state0)
-        carry = (p0, r0, jac0, jnp.sum(r0**2), trial0, jnp.array(1.0), state0, 0)
+        carry = (p0, r0, jac0, jnp.sum(r0**2), trial0, jnp.array(1.0), state0, 0,
+                 jnp.asarray(False))
         best, _, _, cost, *_ = jax.lax.while_loop(cond, body, carry)
         return best, cost
 
-    ends, costs = jax.vmap(solve)(_initial_guesses(apex, goal, h, hopper, tol, terrain, wind))
-    best = ends[jnp.argmin(costs)]
+    if starts is None:
+        starts = _initial_guesses(apex, goal, h, hopper, tol, terrain, wind)
+    ends, costs = jax.vmap(solve)(starts)
+    k = jnp.argmin(costs)
     kc_lo, kc_hi = kc_limits(hopper)
-    return best[0], kc_lo + best[1] * (kc_hi - kc_lo)
+    return ends[k, 0], kc_lo + ends[k, 1] * (kc_hi - kc_lo), costs[k]
+
+
+# Table start (`jaxhop._slip_table`; `docs/slip.md`, "Deadbeat"): Gauss-Newton from the
+# table's refined starts in stages, each only where the ones before it missed `accept`:
+# 1. the best start; 2. the next TABLE_STARTS - 1; 3. (`fallback`) the multi-start solver
+# (`_initial_guesses`, up to 16 steps). A polish stops at the trial strides' noise floor
+# (SEARCH_TOL moves an apex by ~1e-7 m: POLISH_COST, or three rejected steps in a row) or
+# on a target out of reach (an accepted step that gains less than POLISH_STALL of C2).
+TABLE_STARTS = 3
+POLISH_ITER = 6
+POLISH_COST = 1e-14  # C2 of an apex error of 1e-7 m (m/s)
+POLISH_MIN_TRUST = 1.0 / 64
+POLISH_STALL = 1e-2
+# A deadbeat solve is accepted below this C2 (an apex error of 0.1 mm); a decision accepts
+# its own tolerance (`jaxhop._models.SLIP_ACCEPT`).
+ACCEPT_C2 = 1e-8
+STAGES = 3
+
+
+def _once(flag, fn, init):
+    """`fn()` where the traced `flag` holds, else `init`, as a while loop of at most one
+    turn: under `vmap` a batch in which no lane needs it skips it (a `cond` would not)."""
+    _, out = jax.lax.while_loop(lambda c: c[0], lambda c: (jnp.asarray(False), fn()),
+                                (jnp.asarray(flag), init))
+    return out
+
+
+def _deadbeat_table(apex, goal, h, hopper, tol, table, terrain=None, wind=None,
+                    fallback=True, accept=ACCEPT_C2, stages=(1, STAGES), multi_only=False):
+    """The staged table-start solve: `(th_td, kc, c2, stage)`, `stage` the last one run
+    (1-3). `stages = (first, last)` (static) runs only those stages, the first of them
+    unconditionally (a batch's later passes over the lanes that missed). Traced switches:
+    `fallback` allows stage 3; `multi_only` skips the table's stages (a second pass that
+    wants the multi-start solver alone)."""
+    from ._slip_table import table_starts
+
+    starts, _ = table_starts(table, apex, goal, h, hopper, TABLE_STARTS, terrain, wind)
+    first, last = stages
+
+    def polish(p):
+        return _deadbeat_gradient(apex, goal, h, hopper, tol, POLISH_ITER, POLISH_COST,
+                                  terrain, wind, p, POLISH_MIN_TRUST, POLISH_STALL)
+
+    def multi():
+        return _deadbeat_gradient(apex, goal, h, hopper, tol, terrain=terrain, wind=wind)
+
+    runs = {1: lambda: polish(starts[:1]), 2: lambda: polish(starts[1:]), 3: multi}
+    best = (starts[0, 0], kc_limits(hopper)[0] + starts[0, 1] * (
+        kc_limits(hopper)[1] - kc_limits(hopper)[0]), jnp.asarray(jnp.inf))
+    stage = jnp.asarray(0)
+    for k in range(first, last + 1):
+        need = jnp.asarray(True) if k == first else best[2] > accept
+        need = need & (jnp.asarray(fallback) if k == 3 else ~jnp.asarray(multi_only))
+        new = _once(need, runs[k], best)
+        better = new[2] < best[2]
+        best = tuple(jnp.where(better, n, o) for n, o in zip(new, best))
+        stage = jnp.where(need, k, stage)
+    th, kc, c2 = best
+    return th, kc, c2, stage
 
 
 def deadbeat_slip(apex, goal, h, hopper: Hopper, method: str = "gradient",
-                  tol: Tolerances = SEARCH_TOL, terrain=None, wind=None):
+                  tol: Tolerances = SEARCH_TOL, terrain=None, wind=None, table=None,
+                  fallback=True, accept=ACCEPT_C2, multi_only=False):
     """Position-aware SLIP deadbeat controls taking `apex` to `goal` over a foothold at `h`.
 
     Arguments:
@@ -393,6 +469,11 @@ def deadbeat_slip(apex, goal, h, hopper: Hopper, method: str = "gradient",
         wind: `"gradient"` only: a horizontal flight acceleration the strides are inverted
             with (the adaptive controller's estimate; `None`: the windless deadbeat as it
             is). `kd` then balances the work the wind does in flight (`energy_kd`).
+        table: `"gradient"` only: a `jaxhop._slip_table.SlipTable` to start from (the
+            staged solve of `_deadbeat_table`); `None`: the multi-start solver alone.
+        fallback: with `table`, whether a target that the table's starts miss (C2 above
+            `accept`) gets the multi-start solver (traced); `multi_only`: that solver
+            alone (traced).
 
     Returns:
         `(u, ok)`: `u = (th_td, kc, kd)` clipped to the control limits; `ok` when
@@ -405,10 +486,19 @@ def deadbeat_slip(apex, goal, h, hopper: Hopper, method: str = "gradient",
         if wind is not None:
             raise ValueError("the bracket solver is windless; use method='gradient'")
         th, kc = _deadbeat_bracket(apex, goal, h, hopper, tol)
+    elif method == "gradient" and table is not None:
+        th, kc, _, _ = _deadbeat_table(apex, goal, h, hopper, tol, table, terrain, wind,
+                                       fallback, accept, multi_only=multi_only)
     elif method == "gradient":
-        th, kc = _deadbeat_gradient(apex, goal, h, hopper, tol, terrain=terrain, wind=wind)
+        th, kc, _ = _deadbeat_gradient(apex, goal, h, hopper, tol, terrain=terrain, wind=wind)
     else:
         raise ValueError(f"method must be 'bracket' or 'gradient', got {method!r}")
+    return _controls(apex, goal, h, th, kc, hopper, tol, terrain, wind)
+
+
+def _controls(apex, goal, h, th, kc, hopper, tol, terrain=None, wind=None):
+    """`(u, ok)` of `deadbeat_slip` for the solution `(th_td, kc)`: eq 12's `kd` from its
+    trial stride, the controls clipped to their limits."""
     _, code, kd, _ = _trial(apex, goal, h, th, kc, hopper, tol, terrain, wind)
     kc_lo, kc_hi = kc_limits(hopper)
     kc_c = jnp.clip(kc, kc_lo, kc_hi)
@@ -418,3 +508,64 @@ def deadbeat_slip(apex, goal, h, hopper: Hopper, method: str = "gradient",
 
 
 deadbeat_slip_jit = eqx.filter_jit(deadbeat_slip)
+
+
+@functools.cache
+def _stage_fn(stage: int):
+    def one(apex, goal, h, hopper, table):
+        th, kc, c2, _ = _deadbeat_table(apex, goal, h, hopper, SEARCH_TOL, table,
+                                        stages=(stage, stage))
+        return th, kc, c2
+
+    return jax.jit(jax.vmap(one, (0, 0, 0, None, None)))
+
+
+_controls_batch = jax.jit(jax.vmap(lambda a, g, h, th, kc, hopper: _controls(
+    a, g, h, th, kc, hopper, SEARCH_TOL), (0, 0, 0, 0, 0, None)))
+
+
+def deadbeat_slips(apex, goal, h, hopper: Hopper, table=None, accept: float = ACCEPT_C2,
+                   min_batch: int = 8):
+    """`deadbeat_slip` on a batch of targets over flat footholds, with the table's stages as
+    passes over the batch: every target runs stage 1, only those it misses (C2 above
+    `accept`) run stage 2, only those still missing run stage 3 (the multi-start solver).
+    Each pass is padded to a power of two (at least `min_batch`), so a few shapes serve
+    every batch, and no lane waits for a solve it does not need.
+
+    Arguments:
+        apex, goal: `(n, 3)`; h: `(n,)` or a scalar. table: default the cached
+        `jaxhop._slip_table.slip_table()`.
+
+    Returns:
+        `(u, ok, stage)` as NumPy arrays: the controls and flags of `deadbeat_slip`, and the
+        last stage each target ran (3: the multi-start fallback).
+    """
+    import numpy as np
+
+    from ._batching import chunk_index
+    from ._slip_table import slip_table
+
+    table = slip_table() if table is None else table
+    apex = np.atleast_2d(np.asarray(apex, float))
+    goal = np.atleast_2d(np.asarray(goal, float))
+    n = apex.shape[0]
+    h = np.broadcast_to(np.asarray(h, float), (n,))
+    th, kc = np.zeros(n), np.zeros(n)
+    c2 = np.full(n, np.inf)
+    stage = np.zeros(n, np.int32)
+    todo = np.arange(n)
+    for k in range(1, STAGES + 1):
+        if todo.size == 0:
+            break
+        size = max(min_batch, 1 << (todo.size - 1).bit_length())
+        idx = todo[chunk_index(0, size, todo.size)]
+        out = [np.asarray(x)[: todo.size] for x in
+               _stage_fn(k)(apex[idx], goal[idx], h[idx], hopper, table)]
+        better = out[2] < c2[todo]
+        th[todo] = np.where(better, out[0], th[todo])
+        kc[todo] = np.where(better, out[1], kc[todo])
+        c2[todo] = np.minimum(out[2], c2[todo])
+        stage[todo] = k
+        todo = todo[c2[todo] > accept]
+    u, ok = _controls_batch(apex, goal, h, th, kc, hopper)
+    return np.asarray(u), np.asarray(ok), stage

@@ -32,6 +32,7 @@ _BIG = np.iinfo(np.int32).max
 # Mirrors of jaxhop._execute's SLIP decision constants.
 SLIP_CANDIDATES = 2
 SLIP_ACCEPT = np.array([0.05, 0.05, 0.05])
+SLIP_STAGE_C2 = 1e-6  # jaxhop._models.SLIP_STAGE_C2
 
 
 class Controller:
@@ -41,8 +42,11 @@ class Controller:
     first deployed one can be a first match; `best_pos[s]` is its position in the order.
     """
 
-    def __init__(self, plan: Plan):
+    def __init__(self, plan: Plan, slip_table=None):
+        """`slip_table`: `(values, grid)` of the SLIP table (`jaxhop._slip_table`): SLIP
+        decisions then take the table-start deadbeat, as the JAX controller with one."""
         self.plan = plan
+        self.slip_table = slip_table
         n_sit = plan.situation.n_situated
         self.best_pos = np.full(n_sit, _BIG, np.int64)
         self.best_inst = np.zeros(n_sit, np.int64)
@@ -112,19 +116,32 @@ class Controller:
         if order.size == 0:
             return False, None, -1
         sit = self.plan.situation
-        us, misses, insts = [], [], []
-        for k in order:
-            s = int(ids[k])
-            a = int(self.best_inst[s])
-            goal = self.plan.goals[a]
-            h = sit.segs.centre[s // sit.templates.n, 1]
-            u, _ = deadbeat_slip(apex, goal, h, sit.hopper, terrain=sit.terrain)
+        insts = [int(self.best_inst[int(ids[k])]) for k in order]
+        hs = [sit.segs.centre[int(ids[k]) // sit.templates.n, 1] for k in order]
+
+        def one(c, **kw):
+            goal = self.plan.goals[insts[c]]
+            u, _ = deadbeat_slip(apex, goal, hs[c], sit.hopper, terrain=sit.terrain, **kw)
             pred, code, _ = slip_stride(apex, u, sit.terrain, sit.hopper, 0.0, SEARCH_RTOL,
                                        SEARCH_ATOL)
             ok = code == OK and np.all(np.isfinite(pred))
-            misses.append(float(np.max(np.abs(pred - goal) / SLIP_ACCEPT)) if ok else np.inf)
-            us.append(u)
-            insts.append(a)
+            return u, float(np.max(np.abs(pred - goal) / SLIP_ACCEPT)) if ok else np.inf
+
+        if self.slip_table is None:
+            us, misses = map(list, zip(*(one(c) for c in range(len(order)))))
+        else:
+            # `jaxhop._models._first_accepted`: the candidates in order from the table's
+            # starts until one is accepted, then the multi-start solver in order.
+            us, misses = [np.zeros(3)] * len(order), [np.inf] * len(order)
+            tries = [(c, False) for c in range(len(order))]
+            tries += [(c, True) for c in range(len(order))]
+            for c, multi in tries:
+                if min(misses) <= 1.0:
+                    break
+                u, m = one(c, table=self.slip_table, fallback=multi, accept=SLIP_STAGE_C2,
+                           multi_only=multi)
+                if m < misses[c]:
+                    us[c], misses[c] = u, m
         misses = np.asarray(misses)
         good = misses <= 1.0
         pick = int(np.argmax(good)) if good.any() else int(np.argmin(misses))

@@ -347,12 +347,14 @@ def _jacobian(p, apex, goal, h, hopper: Hopper, sqrt_w, terrain=None):
 
 
 def _gauss_newton(p0, apex, goal, h, hopper: Hopper, sqrt_w, max_iter=16, cost_tol=1e-16,
-                  terrain=None):
+                  terrain=None, min_trust=0.0, stall=0.0):
     """`_deadbeat_gradient`'s damped Gauss-Newton, step for step: the step
     `(J'J + 1e-12 tr(J'J) I)^-1 J'r` times the trust scale, clipped to `MAX_STEP` per
     coordinate and the iterate to the bounds; a trial that does not lower C2 is rejected and
     quarters the trust scale, an accepted one doubles it (up to 1). A singular normal
-    matrix (a failed stride's zero Jacobian) gives no step."""
+    matrix (a failed stride's zero Jacobian) gives no step. Stops as the JAX solver's:
+    after `max_iter` trials, at a C2 below `cost_tol`, a trust scale below `min_trust`, or
+    an accepted trial that gains less than the fraction `stall` of C2."""
     def step(p, r, jac, trust):
         normal = jac.T @ jac + 1e-12 * np.trace(jac.T @ jac) * np.eye(2)
         try:
@@ -370,11 +372,13 @@ def _gauss_newton(p0, apex, goal, h, hopper: Hopper, sqrt_w, max_iter=16, cost_t
     cost_b = float(r_b @ r_b)
     trust = 1.0
     trial_p = step(best, r_b, jac_b, trust)
+    flat = False
     for _ in range(max_iter):
-        if not cost_b > cost_tol:
+        if not (cost_b > cost_tol and trust >= min_trust and not flat):
             break
         r = _residual(trial_p, apex, goal, h, hopper, sqrt_w, terrain)
         if float(r @ r) < cost_b:
+            flat = cost_b - float(r @ r) < stall * cost_b
             best, r_b, cost_b = trial_p, r, float(r @ r)
             jac_b = _jacobian(best, apex, goal, h, hopper, sqrt_w, terrain)
             trust = min(2.0 * trust, 1.0)
@@ -384,24 +388,8 @@ def _gauss_newton(p0, apex, goal, h, hopper: Hopper, sqrt_w, max_iter=16, cost_t
     return best, cost_b
 
 
-def deadbeat_slip(apex, goal, h, hopper: Hopper, method: str = "gauss-newton",
-                  terrain: Terrain | None = None):
-    """Position-aware SLIP deadbeat `(u, ok)` from `apex` to `goal` over a foothold at `h`.
-
-    `u = (th_td, kc, kd)` clipped to the limits; `ok` when no clipping was needed and the
-    trial stride with `u` completes (as `jaxhop._slip_deadbeat.deadbeat_slip`, "gradient").
-
-    Arguments:
-        method: `"gauss-newton"` (the JAX gradient solver's iteration, finite-difference
-            Jacobian; the default, used by the execution path) or `"lm"`
-            (`scipy.optimize.least_squares`, MINPACK Levenberg-Marquardt).
-        terrain: plan each trial on the block the foot lands on in this map (the JAX
-            solver's `terrain`).
-    """
-    apex = np.asarray(apex, float)
-    goal = np.asarray(goal, float)
-    h = float(h)
-    sqrt_w = np.sqrt(np.array([W_POS, W_POS, W_VEL]))
+def _multi_start(apex, goal, h, hopper: Hopper, sqrt_w, method="gauss-newton", terrain=None):
+    """The multi-start solver: the best end `(p, C2)` of the starts of `initial_guesses`."""
     best, best_cost = None, INF
     for p0 in initial_guesses(apex, goal, h, hopper, terrain):
         if method == "lm":
@@ -417,6 +405,150 @@ def deadbeat_slip(apex, goal, h, hopper: Hopper, method: str = "gauss-newton",
             best, best_cost = end, cost
     if best is None:  # every start ended at a non-finite cost: argmin of NaNs is the first
         best = initial_guesses(apex, goal, h, hopper, terrain)[0]
+    return best, best_cost
+
+
+# The table start (twin of `jaxhop._slip_table` and `_deadbeat_table`); the table's values
+# are data: a `(values, grid)` pair, `grid` the five `(lo, hi, n)` axes.
+TABLE_STARTS = 3
+POLISH_ITER = 6
+POLISH_COST = 1e-14
+POLISH_MIN_TRUST = 1.0 / 64
+POLISH_STALL = 1e-2
+ACCEPT_C2 = 1e-8
+REFINE_STEPS = 8
+REFINE_MAX = np.array([0.1, 0.3])
+
+
+def _locate(x, lo, hi, n):
+    f = min(max((x - lo) / (hi - lo) * (n - 1), 0.0), n - 1 - 1e-9)
+    i = math.floor(f)
+    return i, f - i
+
+
+def table_slice(values, grid, apex, goal, h, hopper: Hopper):
+    """The table's `(th, s)` plane for the stride, trilinear in `(zeta, nu, eps)`."""
+    vs = math.sqrt(hopper.g * hopper.rho0)
+    x = ((apex[1] - h) / hopper.rho0, apex[2] / vs,
+         (goal[1] - h + 0.5 * goal[2] ** 2 / hopper.g) / hopper.rho0)
+    (iz, wz), (iv, wv), (ie, we) = (_locate(v, *a) for v, a in zip(x, grid[:3]))
+    cube = values[iz:iz + 2, iv:iv + 2, ie:ie + 2]
+    w = (np.array([1 - wz, wz])[:, None, None] * np.array([1 - wv, wv])[None, :, None]
+         * np.array([1 - we, we])[None, None, :])
+    return np.einsum("abc,abcijk->ijk", w, cube)
+
+
+def _bilinear(plane, p, grid):
+    th_ax, s_ax = grid[3], grid[4]
+    (i, wi), (j, wj) = _locate(p[0], *th_ax), _locate(p[1], *s_ax)
+    c = plane[i:i + 2, j:j + 2]
+    value = ((1 - wi) * (1 - wj) * c[0, 0] + wi * (1 - wj) * c[1, 0]
+             + (1 - wi) * wj * c[0, 1] + wi * wj * c[1, 1])
+    d_th = ((c[1, 0] - c[0, 0]) * (1 - wj) + (c[1, 1] - c[0, 1]) * wj) * (
+        (th_ax[2] - 1) / (th_ax[1] - th_ax[0]))
+    d_s = ((c[0, 1] - c[0, 0]) * (1 - wi) + (c[1, 1] - c[1, 0]) * wi) * (
+        (s_ax[2] - 1) / (s_ax[1] - s_ax[0]))
+    return value, np.stack([d_th, d_s], axis=1)
+
+
+def _refine(plane, p0, target, grid):
+    lo = np.array([grid[3][0], grid[4][0]])
+    hi = np.array([grid[3][1], grid[4][1]])
+    p = np.asarray(p0, float)
+    for _ in range(REFINE_STEPS):
+        value, jac = _bilinear(plane, p, grid)
+        try:
+            d = np.linalg.solve(jac + 1e-12 * np.eye(2), value - target)
+        except np.linalg.LinAlgError:
+            d = np.zeros(2)
+        d = np.clip(np.where(np.all(np.isfinite(d)), d, 0.0), -REFINE_MAX, REFINE_MAX)
+        q = np.clip(p - d, lo, hi)
+        if np.all(np.isfinite(_bilinear(plane, q, grid)[0])):
+            p = q
+    r = _bilinear(plane, p, grid)[0] - target
+    return p, float(r @ r) if np.all(np.isfinite(r)) else INF
+
+
+def table_starts(values, grid, apex, goal, h, hopper: Hopper, n_starts=TABLE_STARTS,
+                 terrain=None):
+    """`n_starts` refined table starts `(th, s)`, best first (`jaxhop._slip_table`)."""
+    plane = table_slice(values, grid, apex, goal, h, hopper)
+    target = np.array([(goal[0] - apex[0]) / hopper.rho0,
+                       goal[2] / math.sqrt(hopper.g * hopper.rho0)])
+    scale = np.array([hopper.rho0, math.sqrt(hopper.g * hopper.rho0)])
+    err = (plane - target) * scale
+    cost = W_POS * err[..., 0] ** 2 + W_VEL * err[..., 1] ** 2
+    cost = np.where(np.isfinite(cost), cost, INF)
+    th_axis = np.linspace(*grid[3])
+    if terrain is not None:
+        for k, th in enumerate(th_axis):
+            offset = (hopper.rho0 * math.sin(th), -hopper.rho0 * math.cos(th))
+            code, block, *_ = touchdown_one(apex, terrain, hopper, 0.0, offset)
+            if not (code == OK and terrain.heights[block] == h):
+                cost[k] = INF
+                plane[k] = np.nan
+    s_axis = np.linspace(*grid[4])
+    col = cost.min(axis=0)
+    cols = np.argsort(col, kind="stable")[:n_starts]  # as lax.top_k: ties to the lower
+    cells = [(th_axis[int(np.argmin(cost[:, c]))], s_axis[c]) for c in cols]
+    refined = [_refine(plane, p, target, grid) for p in cells]
+    order = np.argsort([e for _, e in refined], kind="stable")
+    return [refined[i][0] for i in order]
+
+
+def _staged(apex, goal, h, hopper: Hopper, sqrt_w, table, terrain, fallback, accept):
+    """`_deadbeat_table`'s stages: the best start, the others where it misses `accept`,
+    the multi-start solver (with `fallback`) where they miss. Returns `(p, C2, stage)`."""
+    starts = table_starts(*table, apex, goal, h, hopper, TABLE_STARTS, terrain)
+
+    def polish(p0):
+        return _gauss_newton(p0, apex, goal, h, hopper, sqrt_w, POLISH_ITER, POLISH_COST,
+                             terrain, POLISH_MIN_TRUST, POLISH_STALL)
+
+    best, cost = polish(starts[0])
+    stage = 1
+    if cost > accept:
+        stage = 2
+        for p0 in starts[1:]:
+            end, c = polish(p0)
+            if c < cost:
+                best, cost = end, c
+    if cost > accept and fallback:
+        stage = 3
+        end, c = _multi_start(apex, goal, h, hopper, sqrt_w, terrain=terrain)
+        if c < cost:
+            best, cost = end, c
+    return best, cost, stage
+
+
+def deadbeat_slip(apex, goal, h, hopper: Hopper, method: str = "gauss-newton",
+                  terrain: Terrain | None = None, table=None, fallback=True,
+                  accept=ACCEPT_C2, multi_only=False, full=False):
+    """Position-aware SLIP deadbeat `(u, ok)` from `apex` to `goal` over a foothold at `h`.
+
+    `u = (th_td, kc, kd)` clipped to the limits; `ok` when no clipping was needed and the
+    trial stride with `u` completes (as `jaxhop._slip_deadbeat.deadbeat_slip`, "gradient").
+
+    Arguments:
+        method: `"gauss-newton"` (the JAX gradient solver's iteration, finite-difference
+            Jacobian; the default, used by the execution path) or `"lm"`
+            (`scipy.optimize.least_squares`, MINPACK Levenberg-Marquardt).
+        terrain: plan each trial on the block the foot lands on in this map (the JAX
+            solver's `terrain`).
+        table: `(values, grid)` of the SLIP table: the staged table-start solve (Gauss-Newton
+            only), with `fallback`, `accept` and `multi_only` as in JAX. `full`: also
+            return the stage.
+    """
+    apex = np.asarray(apex, float)
+    goal = np.asarray(goal, float)
+    h = float(h)
+    sqrt_w = np.sqrt(np.array([W_POS, W_POS, W_VEL]))
+    stage = 3
+    if table is None or multi_only:
+        best, _ = _multi_start(apex, goal, h, hopper, sqrt_w, method, terrain)
+    else:
+        best, _, stage = _staged(apex, goal, h, hopper, sqrt_w, table, terrain, fallback,
+                                 accept)
     th, s = _clip_p(best)
     kc_lo, kc_hi = kc_limits(hopper)
     kc = kc_lo + s * (kc_hi - kc_lo)
@@ -425,4 +557,5 @@ def deadbeat_slip(apex, goal, h, hopper: Hopper, method: str = "gauss-newton",
     # As jnp.clip: +-inf clips to the limits, NaN stays NaN (then kc is used).
     kd_c = kd if math.isnan(kd) else min(max(kd, RATIO_LO * kc_c), RATIO_HI * kc_c)
     ok = code == OK and kd_c == kd and kc_c == kc and math.isfinite(kd)
-    return np.array([th, kc_c, kd_c if math.isfinite(kd_c) else kc_c]), ok
+    u = np.array([th, kc_c, kd_c if math.isfinite(kd_c) else kc_c])
+    return (u, ok, stage) if full else (u, ok)

@@ -1,0 +1,291 @@
+"""A forward table of the SLIP apex map: the starting points of the SLIP deadbeat.
+
+With `kd` from the energy balance (eq 12), one SLIP stride over flat ground is fixed by five
+dimensionless numbers (Froude scaling: lengths over `rho0`, speeds over `sqrt(g rho0)`):
+
+- `zeta = (z - h) / rho0`, the apex height over the foothold;
+- `nu = ydot / sqrt(g rho0)`, the apex speed;
+- `eps = (z* - h + ydot*^2 / (2 g)) / rho0`, the target apex energy over `m g rho0`
+  relative to the foothold (eq 12 gives the stride exactly this energy);
+- `th`, the touchdown angle;
+- `s = (kappa - KAPPA_LO) / (KAPPA_HI - KAPPA_LO)` with `kappa = kc rho0 / (m g)`.
+
+Its outputs are the horizontal advance `(y' - y) / rho0` and the next apex speed `nu'` (the
+height follows from the energy). The table holds them on a grid over all five (`TableGrid`),
+built once with batched diffrax strides of a unit hopper and valid for every hopper size.
+A deadbeat query interpolates the table multilinearly in `(zeta, nu, eps)` and takes the
+best `(th, s)` cells as starts of a Gauss-Newton polish (`jaxhop._slip_deadbeat`).
+
+The table is cached on disk next to the plans (`cache_dir()/slip-table-<key>.npz`), keyed
+by its grid, the search tolerances and the package version (`docs/slip.md`, "Deadbeat").
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import threading
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._params import Hopper
+
+_FORMAT = 1
+
+
+class TableGrid(eqx.Module):
+    """The table's grid: `(lo, hi, n)` per input (all static)."""
+
+    zeta: tuple = eqx.field(static=True, default=(1.0, 3.0, 11))
+    nu: tuple = eqx.field(static=True, default=(-1.0, 1.0, 41))
+    eps: tuple = eqx.field(static=True, default=(1.0, 3.2, 9))
+    th: tuple = eqx.field(static=True, default=(-0.6, 0.6, 25))
+    s: tuple = eqx.field(static=True, default=(0.0, 1.0, 7))
+
+    def axes(self):
+        return [np.linspace(*a) for a in (self.zeta, self.nu, self.eps, self.th, self.s)]
+
+    def to_list(self):
+        return [list(a) for a in (self.zeta, self.nu, self.eps, self.th, self.s)]
+
+
+DEFAULT_GRID = TableGrid()
+
+
+class SlipTable(eqx.Module):
+    """The tabulated map: `values[iz, iv, ie, ith, is] = (dy / rho0, nu')`, NaN where the
+    stride fails; `grid` gives the axes."""
+
+    values: jnp.ndarray
+    grid: TableGrid = eqx.field(static=True, default=DEFAULT_GRID)
+
+
+_UNIT = Hopper(m=1.0, g=1.0, rho0=1.0)
+
+
+def _entry(zeta, nu, eps, th, s, tol):
+    from ._slip_deadbeat import KAPPA_HI, KAPPA_LO, _trial
+
+    kc = KAPPA_LO + s * (KAPPA_HI - KAPPA_LO)
+    apex = jnp.stack([0.0, zeta, nu])
+    goal = jnp.stack([0.0, eps, 0.0])  # only its energy enters eq 12
+    nxt, code, *_ = _trial(apex, goal, 0.0, th, kc, _UNIT, tol)
+    ok = (code == 0) & jnp.all(jnp.isfinite(nxt))
+    return jnp.where(ok, jnp.stack([nxt[0], nxt[2]]), jnp.nan)
+
+
+def build_table(grid: TableGrid = DEFAULT_GRID, chunk: int = 4096,
+                progress: bool = True) -> np.ndarray:
+    """The table's values on `grid` (`(nz, nv, ne, nth, ns, 2)`), computed with batched
+    diffrax strides of a unit hopper at the deadbeat's search tolerances, on every device."""
+    from ._batching import chunked_map
+    from ._progress import Progress
+    from ._slip_deadbeat import SEARCH_TOL
+
+    axes = grid.axes()
+    mesh = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 5)
+    fn = jax.jit(jax.vmap(lambda x: _entry(*x, SEARCH_TOL)))
+    with Progress(mesh.shape[0], "SLIP table", "strides", enabled=progress) as bar:
+        out = chunked_map(fn, mesh.shape[0], chunk, (mesh,), bar=bar)
+    return np.asarray(out).reshape(*(a.size for a in axes), 2)
+
+
+def table_key(grid: TableGrid = DEFAULT_GRID) -> str:
+    from . import __version__
+    from ._slip_deadbeat import SEARCH_TOL
+
+    payload = {"version": __version__, "format": _FORMAT, "grid": grid.to_list(),
+               "tol": [SEARCH_TOL.rtol, SEARCH_TOL.atol]}
+    return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()[:16]
+
+
+_LOADED: dict = {}
+_LOCK = threading.Lock()
+
+
+def _read(path: str, key: str, shape: tuple):
+    """The cached values at `path`, or `None` (missing, corrupt, stale or another grid)."""
+    try:
+        with np.load(path) as z:
+            if str(z["key"]) == key and z["values"].shape == shape:
+                return z["values"]
+    except (OSError, ValueError, KeyError):
+        pass
+    return None
+
+
+class _FileLock:
+    """An exclusive lock on `path` across processes (POSIX `flock`; a no-op without it), so
+    that processes sharing a cache build the table once."""
+
+    def __init__(self, path: str):
+        self.path, self.f = path, None
+
+    def __enter__(self):
+        try:
+            import fcntl
+        except ImportError:  # pragma: no cover - not POSIX
+            return self
+        self.f = open(self.path, "a")
+        fcntl.flock(self.f, fcntl.LOCK_EX)
+        return self
+
+    def __exit__(self, *exc):
+        if self.f is not None:
+            self.f.close()  # closing releases the lock
+
+
+def slip_table(grid: TableGrid = DEFAULT_GRID, cache: bool = True,
+               progress: bool = True) -> SlipTable:
+    """The SLIP table on `grid`: from memory, from the disk cache, or built (and cached).
+
+    A corrupt or stale cache file is rebuilt; processes that share the cache directory
+    build it once (a lock file beside it). `cache=False` builds it without the disk.
+    `progress`: a bar while it is built.
+    """
+    from ._cache import cache_dir
+
+    key = table_key(grid)
+    shape = tuple(a.size for a in grid.axes()) + (2,)
+    with _LOCK:
+        if key in _LOADED:
+            return _LOADED[key]
+        if not cache:
+            values = build_table(grid, progress=progress)
+        else:
+            os.makedirs(cache_dir(), exist_ok=True)
+            path = os.path.join(cache_dir(), f"slip-table-{key}.npz")
+            values = _read(path, key, shape)
+            if values is None:
+                with _FileLock(path + ".lock"):
+                    values = _read(path, key, shape)  # another process may have built it
+                    if values is None:
+                        values = build_table(grid, progress=progress)
+                        tmp = f"{path}.{os.getpid()}.tmp"
+                        with open(tmp, "wb") as f:
+                            np.savez(f, key=np.asarray(key), values=values)
+                        os.replace(tmp, path)
+        table = SlipTable(jnp.asarray(values), grid)
+        _LOADED[key] = table
+        return table
+
+
+# Newton steps on the interpolated plane per start, and their largest step (th, s).
+REFINE_STEPS = 8
+REFINE_MAX = (0.1, 0.3)
+
+
+def _locate(x, lo, hi, n):
+    """Cell index and weight of `x` on the axis `linspace(lo, hi, n)`, clipped to it."""
+    f = jnp.clip((x - lo) / (hi - lo) * (n - 1), 0.0, n - 1 - 1e-9)
+    i = jnp.floor(f).astype(jnp.int32)
+    return i, f - i
+
+
+def table_slice(table: SlipTable, apex, goal, h, hopper: Hopper):
+    """The table's `(th, s)` plane for the stride from `apex` with the goal's energy over a
+    foothold at `h`: `(nth, ns, 2)` of `(dy / rho0, nu')`, interpolated multilinearly in
+    `(zeta, nu, eps)`; NaN where a corner stride failed."""
+    g = table.grid
+    vs = jnp.sqrt(hopper.g * hopper.rho0)
+    zeta = (apex[1] - h) / hopper.rho0
+    nu = apex[2] / vs
+    eps = (goal[1] - h + 0.5 * goal[2] ** 2 / hopper.g) / hopper.rho0
+    (iz, wz), (iv, wv), (ie, we) = (_locate(x, *a) for a, x in
+                                    ((g.zeta, zeta), (g.nu, nu), (g.eps, eps)))
+    zero = jnp.zeros((), jnp.int32)
+    cube = jax.lax.dynamic_slice(table.values, (iz, iv, ie, zero, zero, zero),
+                                 (2, 2, 2) + table.values.shape[3:])
+    w = (jnp.stack([1 - wz, wz])[:, None, None] * jnp.stack([1 - wv, wv])[None, :, None]
+         * jnp.stack([1 - we, we])[None, None, :])
+    out = jnp.einsum("abc,abcijk->ijk", w, cube)
+    # A cell with a failed corner is NaN (no start there): next to the failure boundary the
+    # map is steep and a start from it often fails.
+    return out
+
+
+def _target(apex, goal, hopper: Hopper):
+    """The stride's target in the table's units: `((y* - y) / rho0, ydot* / sqrt(g rho0))`."""
+    return jnp.stack([(goal[0] - apex[0]) / hopper.rho0,
+                      goal[2] / jnp.sqrt(hopper.g * hopper.rho0)])
+
+
+def _bilinear(plane, p, grid: TableGrid):
+    """The plane's bilinear interpolant at `p = (th, s)` and its Jacobian (`(2,)`, `(2, 2)`;
+    the cell's own slopes, also on its edges)."""
+    (i, wi), (j, wj) = _locate(p[0], *grid.th), _locate(p[1], *grid.s)
+    c = jax.lax.dynamic_slice(plane, (i, j, jnp.zeros((), jnp.int32)), (2, 2, 2))
+    value = ((1 - wi) * (1 - wj) * c[0, 0] + wi * (1 - wj) * c[1, 0]
+             + (1 - wi) * wj * c[0, 1] + wi * wj * c[1, 1])
+    d_th = ((c[1, 0] - c[0, 0]) * (1 - wj) + (c[1, 1] - c[0, 1]) * wj) * (
+        (grid.th[2] - 1) / (grid.th[1] - grid.th[0]))
+    d_s = ((c[0, 1] - c[0, 0]) * (1 - wi) + (c[1, 1] - c[1, 0]) * wi) * (
+        (grid.s[2] - 1) / (grid.s[1] - grid.s[0]))
+    return value, jnp.stack([d_th, d_s], axis=1)
+
+
+def _refine(plane, p0, target, grid: TableGrid, steps: int = REFINE_STEPS):
+    """Newton steps on the plane's bilinear interpolant in `(th, s)` from `p0` towards
+    `target` (no stride is run), each clipped to `REFINE_MAX` and to the axes; a step into
+    a NaN cell is not taken. Returns the end point and its interpolated squared error."""
+    lo = jnp.array([grid.th[0], grid.s[0]])
+    hi = jnp.array([grid.th[1], grid.s[1]])
+    limit = jnp.asarray(REFINE_MAX)
+
+    def step(_, p):
+        value, jac = _bilinear(plane, p, grid)
+        d = jnp.linalg.solve(jac + 1e-12 * jnp.eye(2), value - target)
+        d = jnp.clip(jnp.where(jnp.all(jnp.isfinite(d)), d, 0.0), -limit, limit)
+        q = jnp.clip(p - d, lo, hi)
+        return jnp.where(jnp.all(jnp.isfinite(_bilinear(plane, q, grid)[0])), q, p)
+
+    p = jax.lax.fori_loop(0, steps, step, p0)
+    r = _bilinear(plane, p, grid)[0] - target
+    return p, jnp.where(jnp.all(jnp.isfinite(r)), jnp.sum(r**2), jnp.inf)
+
+
+def table_starts(table: SlipTable, apex, goal, h, hopper: Hopper, n_starts: int,
+                 terrain=None, wind=None):
+    """`n_starts` starting points `(th, s)` of the deadbeat for the stride, best first, with
+    their interpolated squared errors (in the table's units).
+
+    The best cell of each of the `n_starts` best `s` columns (C2 of eq 16 on the plane,
+    `table_slice`), each refined by Newton steps on the plane's interpolant (`_refine`),
+    then ordered by the refined error.
+
+    With `terrain`, a touchdown angle whose foot does not land on a block at the foothold's
+    height `h` (the descent with `wind` meets a wall, a hole, the map's end or another
+    block: `jaxhop._flight.touchdown`) is no start: the table knows flat ground only.
+    """
+    from ._flight import OK, touchdown
+    from ._slip_deadbeat import W_POS, W_VEL
+
+    g = table.grid
+    plane = table_slice(table, apex, goal, h, hopper)
+    target = _target(apex, goal, hopper)
+    scale = jnp.stack([hopper.rho0, jnp.sqrt(hopper.g * hopper.rho0)])
+    err = (plane - target) * scale
+    cost = W_POS * err[..., 0] ** 2 + W_VEL * err[..., 1] ** 2
+    cost = jnp.where(jnp.isfinite(cost), cost, jnp.inf)  # (nth, ns)
+    th_axis = jnp.linspace(*g.th)
+    if terrain is not None:
+        def lands(th):
+            offset = hopper.rho0 * jnp.stack([jnp.sin(th), -jnp.cos(th)])
+            code, block, *_ = touchdown(apex, offset, terrain, hopper,
+                                        *([] if wind is None else [wind]))
+            return (code == OK) & (terrain.heights[block] == h)
+
+        landing = jax.vmap(lands)(th_axis)
+        cost = jnp.where(landing[:, None], cost, jnp.inf)
+        plane = jnp.where(landing[:, None, None], plane, jnp.nan)
+    s_axis = jnp.linspace(*g.s)
+    best_th = jnp.argmin(cost, axis=0)
+    _, cols = jax.lax.top_k(-jnp.min(cost, axis=0), n_starts)
+    cells = jnp.stack([th_axis[best_th[cols]], s_axis[cols]], axis=1)
+    refined, errs = jax.vmap(lambda p: _refine(plane, p, target, g))(cells)
+    order = jnp.argsort(errs)
+    return refined[order], errs[order]
