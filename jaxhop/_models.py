@@ -189,8 +189,8 @@ def decide_bhop(apex, tables: PlanTables, hopper: Hopper, wind=None, heights=Non
 SLIP_CANDIDATES = 2
 SLIP_ACCEPT = (0.05, 0.05, 0.05)
 # A decision's deadbeat tries the table's further starts where the best one ends with a C2
-# above this (an apex error of 1 mm; `jaxhop._slip_deadbeat._deadbeat_table`).
-SLIP_STAGE_C2 = 1e-6
+# above this (an apex error of 1 cm; `jaxhop._slip_deadbeat._deadbeat_table`).
+SLIP_STAGE_C2 = 1e-4
 
 
 def _first_accepted(one, goals, h, valid):

@@ -394,63 +394,90 @@ def _deadbeat_gradient(apex, goal, h, hopper, tol, max_iter=16, cost_tol=1e-16,
     return ends[k, 0], kc_lo + ends[k, 1] * (kc_hi - kc_lo), costs[k]
 
 
-# Table start (`jaxhop._slip_table`; `docs/slip.md`, "Deadbeat"): Gauss-Newton from the
-# table's refined starts in stages, each only where the ones before it missed `accept`:
-# 1. the best start; 2. the next TABLE_STARTS - 1; 3. (`fallback`) the multi-start solver
-# (`_initial_guesses`, up to 16 steps). A polish stops at the trial strides' noise floor
-# (SEARCH_TOL moves an apex by ~1e-7 m: POLISH_COST, or three rejected steps in a row) or
-# on a target out of reach (an accepted step that gains less than POLISH_STALL of C2).
+# Table start (`jaxhop._slip_table`; `docs/slip.md`, "Deadbeat"): Gauss-Newton from one
+# start at a time, each only where the ones before it missed `accept`: the table's
+# TABLE_STARTS refined starts, best first (stage 1: the first; stage 2: the others), then
+# (`fallback`) the multi-start solver's starts (`_initial_guesses`, stage 3). A table start's
+# polish stops at the trial strides' noise floor (SEARCH_TOL moves an apex by ~1e-7 m:
+# POLISH_COST, or three rejected steps in a row), on a target out of reach (an accepted
+# step that gains less than POLISH_STALL of C2), or after POLISH_ITER steps; a multi-start
+# one runs as `_deadbeat_gradient` does. One start at a time keeps a single Gauss-Newton
+# program in the compiled decision (a vmap over a stage's starts would compile one per
+# stage, and took minutes more to compile).
 TABLE_STARTS = 3
 POLISH_ITER = 6
 POLISH_COST = 1e-14  # C2 of an apex error of 1e-7 m (m/s)
 POLISH_MIN_TRUST = 1.0 / 64
-POLISH_STALL = 1e-2
+POLISH_STALL = 1e-3
 # A deadbeat solve is accepted below this C2 (an apex error of 0.1 mm); a decision accepts
-# its own tolerance (`jaxhop._models.SLIP_ACCEPT`).
+# its own tolerance (`jaxhop._models.SLIP_STAGE_C2`).
 ACCEPT_C2 = 1e-8
+N_MULTI = 3  # the multi-start solver's starts (`_initial_guesses`)
 STAGES = 3
 
 
+def _stage_of(i):
+    """The stage of start `i` (0-based: table starts, then the multi-start ones)."""
+    return jnp.where(i == 0, 1, jnp.where(i < TABLE_STARTS, 2, 3))
+
+
 def _once(flag, fn, init):
-    """`fn()` where the traced `flag` holds, else `init`, as a while loop of at most one
-    turn: under `vmap` a batch in which no lane needs it skips it (a `cond` would not)."""
-    _, out = jax.lax.while_loop(lambda c: c[0], lambda c: (jnp.asarray(False), fn()),
-                                (jnp.asarray(flag), init))
+    """`fn(zero)` where the traced `flag` holds, else `init`, as a while loop of at most one
+    turn: under `vmap` a batch in which no lane needs it skips it (a `cond` would not).
+
+    `fn` must add `zero` (a traced 0.0 that depends on the loop's carry) to an input of its
+    computation: XLA hoists loop-invariant work out of while loops, and an invariant `fn`
+    would then run whether or not the flag holds (measured: 8x the time of a deadbeat
+    solve that never needed it)."""
+    def body(c):
+        zero = jnp.where(c[0], 0.0, jnp.nan)
+        return jnp.asarray(False), fn(zero)
+
+    _, out = jax.lax.while_loop(lambda c: c[0], body, (jnp.asarray(flag), init))
     return out
 
 
 def _deadbeat_table(apex, goal, h, hopper, tol, table, terrain=None, wind=None,
-                    fallback=True, accept=ACCEPT_C2, stages=(1, STAGES), multi_only=False):
-    """The staged table-start solve: `(th_td, kc, c2, stage)`, `stage` the last one run
-    (1-3). `stages = (first, last)` (static) runs only those stages, the first of them
-    unconditionally (a batch's later passes over the lanes that missed). Traced switches:
-    `fallback` allows stage 3; `multi_only` skips the table's stages (a second pass that
-    wants the multi-start solver alone)."""
+                    fallback=True, accept=ACCEPT_C2, first=0, last=None):
+    """The table-start solve: `(th_td, kc, c2, stage)`, `stage` that of the last start run
+    (1-3). Starts `first .. last - 1` (traced; default: all, the multi-start ones only with
+    `fallback`) are tried in order until one ends with C2 <= `accept`; the best end wins.
+    The multi-start guesses are computed only when the loop reaches them."""
     from ._slip_table import table_starts
 
     starts, _ = table_starts(table, apex, goal, h, hopper, TABLE_STARTS, terrain, wind)
-    first, last = stages
+    n_all = TABLE_STARTS + N_MULTI
+    last = jnp.where(jnp.asarray(fallback), n_all, TABLE_STARTS) if last is None else last
+    kc_lo, kc_hi = kc_limits(hopper)
 
-    def polish(p):
-        return _deadbeat_gradient(apex, goal, h, hopper, tol, POLISH_ITER, POLISH_COST,
-                                  terrain, wind, p, POLISH_MIN_TRUST, POLISH_STALL)
+    def more(carry):
+        i, _, c2, _ = carry
+        return (i < last) & (c2 > accept)
 
-    def multi():
-        return _deadbeat_gradient(apex, goal, h, hopper, tol, terrain=terrain, wind=wind)
+    def next_start(carry):
+        i, p, c2, guesses = carry
+        guesses = _once((i >= TABLE_STARTS) & jnp.all(jnp.isnan(guesses)),
+                        lambda zero: _initial_guesses(apex + zero, goal, h, hopper, tol,
+                                                      terrain, wind),
+                        guesses)
+        table_start = i < TABLE_STARTS
+        p0 = jnp.where(table_start, starts[jnp.minimum(i, TABLE_STARTS - 1)],
+                       guesses[jnp.clip(i - TABLE_STARTS, 0, N_MULTI - 1)])
 
-    runs = {1: lambda: polish(starts[:1]), 2: lambda: polish(starts[1:]), 3: multi}
-    best = (starts[0, 0], kc_limits(hopper)[0] + starts[0, 1] * (
-        kc_limits(hopper)[1] - kc_limits(hopper)[0]), jnp.asarray(jnp.inf))
-    stage = jnp.asarray(0)
-    for k in range(first, last + 1):
-        need = jnp.asarray(True) if k == first else best[2] > accept
-        need = need & (jnp.asarray(fallback) if k == 3 else ~jnp.asarray(multi_only))
-        new = _once(need, runs[k], best)
-        better = new[2] < best[2]
-        best = tuple(jnp.where(better, n, o) for n, o in zip(new, best))
-        stage = jnp.where(need, k, stage)
-    th, kc, c2 = best
-    return th, kc, c2, stage
+        def pick(polish, full):
+            return jnp.where(table_start, polish, full)
+
+        th, kc, c = _deadbeat_gradient(apex, goal, h, hopper, tol, pick(POLISH_ITER, 16),
+                                       pick(POLISH_COST, 1e-16), terrain, wind, p0[None],
+                                       pick(POLISH_MIN_TRUST, 0.0), pick(POLISH_STALL, 0.0))
+        better = c < c2
+        q = jnp.stack([th, (kc - kc_lo) / (kc_hi - kc_lo)])
+        return i + 1, jnp.where(better, q, p), jnp.minimum(c, c2), guesses
+
+    carry = (jnp.asarray(first), starts[0], jnp.asarray(jnp.inf),
+             jnp.full((N_MULTI, 2), jnp.nan))
+    i, p, c2, _ = jax.lax.while_loop(more, next_start, carry)
+    return p[0], kc_lo + p[1] * (kc_hi - kc_lo), c2, _stage_of(jnp.maximum(i - 1, 0))
 
 
 def deadbeat_slip(apex, goal, h, hopper: Hopper, method: str = "gradient",
@@ -488,7 +515,8 @@ def deadbeat_slip(apex, goal, h, hopper: Hopper, method: str = "gradient",
         th, kc = _deadbeat_bracket(apex, goal, h, hopper, tol)
     elif method == "gradient" and table is not None:
         th, kc, _, _ = _deadbeat_table(apex, goal, h, hopper, tol, table, terrain, wind,
-                                       fallback, accept, multi_only=multi_only)
+                                       fallback, accept,
+                                       jnp.where(multi_only, TABLE_STARTS, 0))
     elif method == "gradient":
         th, kc, _ = _deadbeat_gradient(apex, goal, h, hopper, tol, terrain=terrain, wind=wind)
     else:
@@ -510,14 +538,18 @@ def _controls(apex, goal, h, th, kc, hopper, tol, terrain=None, wind=None):
 deadbeat_slip_jit = eqx.filter_jit(deadbeat_slip)
 
 
-@functools.cache
-def _stage_fn(stage: int):
-    def one(apex, goal, h, hopper, table):
-        th, kc, c2, _ = _deadbeat_table(apex, goal, h, hopper, SEARCH_TOL, table,
-                                        stages=(stage, stage))
-        return th, kc, c2
+# The passes of `deadbeat_slips`: the starts each runs.
+_PASSES = ((0, 1), (1, TABLE_STARTS), (TABLE_STARTS, TABLE_STARTS + N_MULTI))
 
-    return jax.jit(jax.vmap(one, (0, 0, 0, None, None)))
+
+@functools.cache
+def _pass_fn():
+    def one(apex, goal, h, first, last, hopper, table):
+        th, kc, c2, stage = _deadbeat_table(apex, goal, h, hopper, SEARCH_TOL, table,
+                                            first=first, last=last)
+        return th, kc, c2, stage
+
+    return jax.jit(jax.vmap(one, (0, 0, 0, None, None, None, None)))
 
 
 _controls_batch = jax.jit(jax.vmap(lambda a, g, h, th, kc, hopper: _controls(
@@ -527,8 +559,9 @@ _controls_batch = jax.jit(jax.vmap(lambda a, g, h, th, kc, hopper: _controls(
 def deadbeat_slips(apex, goal, h, hopper: Hopper, table=None, accept: float = ACCEPT_C2,
                    min_batch: int = 8):
     """`deadbeat_slip` on a batch of targets over flat footholds, with the table's stages as
-    passes over the batch: every target runs stage 1, only those it misses (C2 above
-    `accept`) run stage 2, only those still missing run stage 3 (the multi-start solver).
+    passes over the batch: every target runs the table's best start, only those it misses
+    (C2 above `accept`) run the other table starts, only those still missing run the
+    multi-start solver's starts.
     Each pass is padded to a power of two (at least `min_batch`), so a few shapes serve
     every batch, and no lane waits for a solve it does not need.
 
@@ -554,18 +587,18 @@ def deadbeat_slips(apex, goal, h, hopper: Hopper, table=None, accept: float = AC
     c2 = np.full(n, np.inf)
     stage = np.zeros(n, np.int32)
     todo = np.arange(n)
-    for k in range(1, STAGES + 1):
+    for first, last in _PASSES:
         if todo.size == 0:
             break
         size = max(min_batch, 1 << (todo.size - 1).bit_length())
         idx = todo[chunk_index(0, size, todo.size)]
         out = [np.asarray(x)[: todo.size] for x in
-               _stage_fn(k)(apex[idx], goal[idx], h[idx], hopper, table)]
+               _pass_fn()(apex[idx], goal[idx], h[idx], first, last, hopper, table)]
         better = out[2] < c2[todo]
         th[todo] = np.where(better, out[0], th[todo])
         kc[todo] = np.where(better, out[1], kc[todo])
         c2[todo] = np.minimum(out[2], c2[todo])
-        stage[todo] = k
+        stage[todo] = out[3]
         todo = todo[c2[todo] > accept]
     u, ok = _controls_batch(apex, goal, h, th, kc, hopper)
     return np.asarray(u), np.asarray(ok), stage

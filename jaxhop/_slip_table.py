@@ -175,7 +175,7 @@ def slip_table(grid: TableGrid = DEFAULT_GRID, cache: bool = True,
 
 
 # Newton steps on the interpolated plane per start, and their largest step (th, s).
-REFINE_STEPS = 8
+REFINE_STEPS = 12
 REFINE_MAX = (0.1, 0.3)
 
 
@@ -229,23 +229,35 @@ def _bilinear(plane, p, grid: TableGrid):
 
 
 def _refine(plane, p0, target, grid: TableGrid, steps: int = REFINE_STEPS):
-    """Newton steps on the plane's bilinear interpolant in `(th, s)` from `p0` towards
-    `target` (no stride is run), each clipped to `REFINE_MAX` and to the axes; a step into
-    a NaN cell is not taken. Returns the end point and its interpolated squared error."""
+    """Damped Gauss-Newton steps on the plane's bilinear interpolant in `(th, s)` from `p0`
+    towards `target` (no stride is run), each clipped to `REFINE_MAX` and to the axes: a
+    step that does not lower the interpolated squared error (or enters a NaN cell) is not
+    taken and quarters the next one; a taken one doubles it (up to a full step). On a
+    target out of reach it ends near the interpolant's least error. Returns the end point
+    and its interpolated squared error."""
     lo = jnp.array([grid.th[0], grid.s[0]])
     hi = jnp.array([grid.th[1], grid.s[1]])
     limit = jnp.asarray(REFINE_MAX)
 
-    def step(_, p):
-        value, jac = _bilinear(plane, p, grid)
-        d = jnp.linalg.solve(jac + 1e-12 * jnp.eye(2), value - target)
-        d = jnp.clip(jnp.where(jnp.all(jnp.isfinite(d)), d, 0.0), -limit, limit)
-        q = jnp.clip(p - d, lo, hi)
-        return jnp.where(jnp.all(jnp.isfinite(_bilinear(plane, q, grid)[0])), q, p)
+    def err2(p):
+        r = _bilinear(plane, p, grid)[0] - target
+        return jnp.where(jnp.all(jnp.isfinite(r)), jnp.sum(r**2), jnp.inf)
 
-    p = jax.lax.fori_loop(0, steps, step, p0)
-    r = _bilinear(plane, p, grid)[0] - target
-    return p, jnp.where(jnp.all(jnp.isfinite(r)), jnp.sum(r**2), jnp.inf)
+    def step(_, carry):
+        p, e, trust = carry
+        value, jac = _bilinear(plane, p, grid)
+        normal = jac.T @ jac
+        d = jnp.linalg.solve(normal + 1e-12 * jnp.trace(normal) * jnp.eye(2),
+                             jac.T @ (value - target))
+        d = jnp.clip(jnp.where(jnp.all(jnp.isfinite(d)), trust * d, 0.0), -limit, limit)
+        q = jnp.clip(p - d, lo, hi)
+        eq = err2(q)
+        better = eq < e
+        return (jnp.where(better, q, p), jnp.where(better, eq, e),
+                jnp.where(better, jnp.minimum(2.0 * trust, 1.0), 0.25 * trust))
+
+    p, e, _ = jax.lax.fori_loop(0, steps, step, (p0, err2(p0), jnp.asarray(1.0)))
+    return p, e
 
 
 def table_starts(table: SlipTable, apex, goal, h, hopper: Hopper, n_starts: int,

@@ -32,7 +32,7 @@ _BIG = np.iinfo(np.int32).max
 # Mirrors of jaxhop._execute's SLIP decision constants.
 SLIP_CANDIDATES = 2
 SLIP_ACCEPT = np.array([0.05, 0.05, 0.05])
-SLIP_STAGE_C2 = 1e-6  # jaxhop._models.SLIP_STAGE_C2
+SLIP_STAGE_C2 = 1e-4  # jaxhop._models.SLIP_STAGE_C2
 
 
 class Controller:

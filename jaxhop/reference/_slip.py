@@ -414,9 +414,9 @@ TABLE_STARTS = 3
 POLISH_ITER = 6
 POLISH_COST = 1e-14
 POLISH_MIN_TRUST = 1.0 / 64
-POLISH_STALL = 1e-2
+POLISH_STALL = 1e-3
 ACCEPT_C2 = 1e-8
-REFINE_STEPS = 8
+REFINE_STEPS = 12
 REFINE_MAX = np.array([0.1, 0.3])
 
 
@@ -452,21 +452,32 @@ def _bilinear(plane, p, grid):
 
 
 def _refine(plane, p0, target, grid):
+    """`jaxhop._slip_table._refine`: damped Gauss-Newton on the plane's interpolant."""
     lo = np.array([grid[3][0], grid[4][0]])
     hi = np.array([grid[3][1], grid[4][1]])
-    p = np.asarray(p0, float)
+
+    def err2(p):
+        r = _bilinear(plane, p, grid)[0] - target
+        return float(r @ r) if np.all(np.isfinite(r)) else INF
+
+    p, e, trust = np.asarray(p0, float), err2(p0), 1.0
     for _ in range(REFINE_STEPS):
         value, jac = _bilinear(plane, p, grid)
+        normal = jac.T @ jac
         try:
-            d = np.linalg.solve(jac + 1e-12 * np.eye(2), value - target)
+            d = np.linalg.solve(normal + 1e-12 * np.trace(normal) * np.eye(2),
+                                jac.T @ (value - target))
         except np.linalg.LinAlgError:
             d = np.zeros(2)
-        d = np.clip(np.where(np.all(np.isfinite(d)), d, 0.0), -REFINE_MAX, REFINE_MAX)
+        d = np.clip(trust * d if np.all(np.isfinite(d)) else np.zeros(2), -REFINE_MAX,
+                    REFINE_MAX)
         q = np.clip(p - d, lo, hi)
-        if np.all(np.isfinite(_bilinear(plane, q, grid)[0])):
-            p = q
-    r = _bilinear(plane, p, grid)[0] - target
-    return p, float(r @ r) if np.all(np.isfinite(r)) else INF
+        eq = err2(q)
+        if eq < e:
+            p, e, trust = q, eq, min(2.0 * trust, 1.0)
+        else:
+            trust = 0.25 * trust
+    return p, e
 
 
 def table_starts(values, grid, apex, goal, h, hopper: Hopper, n_starts=TABLE_STARTS,
@@ -496,28 +507,28 @@ def table_starts(values, grid, apex, goal, h, hopper: Hopper, n_starts=TABLE_STA
     return [refined[i][0] for i in order]
 
 
-def _staged(apex, goal, h, hopper: Hopper, sqrt_w, table, terrain, fallback, accept):
-    """`_deadbeat_table`'s stages: the best start, the others where it misses `accept`,
-    the multi-start solver (with `fallback`) where they miss. Returns `(p, C2, stage)`."""
+def _staged(apex, goal, h, hopper: Hopper, sqrt_w, table, terrain, fallback, accept,
+            first=0):
+    """`_deadbeat_table`: one start at a time from start `first` until one ends with C2 <=
+    `accept` (the table's starts, best first, with the polish's stops, then with `fallback`
+    the multi-start solver's starts as it runs them); the best end wins. Returns
+    `(p, C2, stage)`."""
     starts = table_starts(*table, apex, goal, h, hopper, TABLE_STARTS, terrain)
-
-    def polish(p0):
-        return _gauss_newton(p0, apex, goal, h, hopper, sqrt_w, POLISH_ITER, POLISH_COST,
-                             terrain, POLISH_MIN_TRUST, POLISH_STALL)
-
-    best, cost = polish(starts[0])
-    stage = 1
-    if cost > accept:
-        stage = 2
-        for p0 in starts[1:]:
-            end, c = polish(p0)
-            if c < cost:
-                best, cost = end, c
-    if cost > accept and fallback:
-        stage = 3
-        end, c = _multi_start(apex, goal, h, hopper, sqrt_w, terrain=terrain)
+    n_all = TABLE_STARTS + 3 if fallback else TABLE_STARTS
+    best, cost, i, guesses = np.asarray(starts[0], float), INF, first, None
+    while i < n_all and cost > accept:
+        if i < TABLE_STARTS:
+            end, c = _gauss_newton(starts[i], apex, goal, h, hopper, sqrt_w, POLISH_ITER,
+                                   POLISH_COST, terrain, POLISH_MIN_TRUST, POLISH_STALL)
+        else:
+            if guesses is None:
+                guesses = initial_guesses(apex, goal, h, hopper, terrain)
+            end, c = _gauss_newton(guesses[i - TABLE_STARTS], apex, goal, h, hopper, sqrt_w,
+                                   terrain=terrain)
         if c < cost:
-            best, cost = end, c
+            best, cost = np.asarray(end, float), c
+        i += 1
+    stage = 1 if i <= 1 else (2 if i <= TABLE_STARTS else 3)
     return best, cost, stage
 
 
@@ -544,11 +555,11 @@ def deadbeat_slip(apex, goal, h, hopper: Hopper, method: str = "gauss-newton",
     h = float(h)
     sqrt_w = np.sqrt(np.array([W_POS, W_POS, W_VEL]))
     stage = 3
-    if table is None or multi_only:
+    if table is None:
         best, _ = _multi_start(apex, goal, h, hopper, sqrt_w, method, terrain)
     else:
         best, _, stage = _staged(apex, goal, h, hopper, sqrt_w, table, terrain, fallback,
-                                 accept)
+                                 accept, TABLE_STARTS if multi_only else 0)
     th, s = _clip_p(best)
     kc_lo, kc_hi = kc_limits(hopper)
     kc = kc_lo + s * (kc_hi - kc_lo)
