@@ -300,8 +300,8 @@ def within_1mm(apex, goal, u):
 
 
 def bench_slip_deadbeat(quick: bool):
-    from jaxhop._slip_deadbeat import deadbeat_slip, deadbeat_slips
-    from jaxhop._slip_table import slip_table
+    from jaxhop._slip_deadbeat import deadbeat_slip
+    from jaxhop._slip_table import deadbeat_slips, slip_table
     from jaxhop.reference import _slip as RS
 
     n = 1024

@@ -18,6 +18,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ._params import Hopper
+from ._paths import cache_dir
 from ._plan import PROBE_HALF_WIDTH, Plan, _check_goal, build_plan
 from ._policies import PairGrid
 from ._templates import Templates, paper_templates
@@ -43,12 +44,6 @@ def plan_key(terrain: Terrain, goal, templates: Templates, hopper: Hopper,
         "probe": PROBE_HALF_WIDTH,
     }
     return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()
-
-
-def cache_dir() -> str:
-    """`$JAXHOP_CACHE`, default `~/.cache/jaxhop`."""
-    return os.environ.get("JAXHOP_CACHE", os.path.join(os.path.expanduser("~"), ".cache",
-                                                       "jaxhop"))
 
 
 def save_plan(plan: Plan, path: str, key: str) -> None:

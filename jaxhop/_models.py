@@ -189,7 +189,7 @@ def decide_bhop(apex, tables: PlanTables, hopper: Hopper, wind=None, heights=Non
 SLIP_CANDIDATES = 2
 SLIP_ACCEPT = (0.05, 0.05, 0.05)
 # A decision's deadbeat tries the table's further starts where the best one ends with a C2
-# above this (an apex error of 1 cm; `jaxhop._slip_deadbeat._deadbeat_table`).
+# above this (an apex error of 1 cm; `jaxhop._slip_table._deadbeat_table`).
 SLIP_STAGE_C2 = 1e-4
 
 

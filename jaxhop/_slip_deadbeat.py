@@ -30,8 +30,6 @@ Two solvers:
 One sample per call; vmap for batches.
 """
 
-import functools
-
 import diffrax
 import equinox as eqx
 import jax
@@ -394,95 +392,9 @@ def _deadbeat_gradient(apex, goal, h, hopper, tol, max_iter=16, cost_tol=1e-16,
     return ends[k, 0], kc_lo + ends[k, 1] * (kc_hi - kc_lo), costs[k]
 
 
-# Table start (`jaxhop._slip_table`; `docs/slip.md`, "Deadbeat"): Gauss-Newton from one
-# start at a time, each only where the ones before it missed `accept`: the table's
-# TABLE_STARTS refined starts, best first (stage 1: the first; stage 2: the others), then
-# (`fallback`) the multi-start solver's starts (`_initial_guesses`, stage 3). A table start's
-# polish stops at the trial strides' noise floor (SEARCH_TOL moves an apex by ~1e-7 m:
-# POLISH_COST, or three rejected steps in a row), on a target out of reach (an accepted
-# step that gains less than POLISH_STALL of C2), or after POLISH_ITER steps; a multi-start
-# one runs as `_deadbeat_gradient` does. One start at a time keeps a single Gauss-Newton
-# program in the compiled decision (a vmap over a stage's starts would compile one per
-# stage, and took minutes more to compile).
-TABLE_STARTS = 3
-POLISH_ITER = 6
-POLISH_COST = 1e-14  # C2 of an apex error of 1e-7 m (m/s)
-POLISH_MIN_TRUST = 1.0 / 64
-POLISH_STALL = 1e-3
-# A deadbeat solve is accepted below this C2 (an apex error of 0.1 mm); a decision accepts
-# its own tolerance (`jaxhop._models.SLIP_STAGE_C2`).
-ACCEPT_C2 = 1e-8
-N_MULTI = 3  # the multi-start solver's starts (`_initial_guesses`)
-STAGES = 3
-
-
-def _stage_of(i):
-    """The stage of start `i` (0-based: table starts, then the multi-start ones)."""
-    return jnp.where(i == 0, 1, jnp.where(i < TABLE_STARTS, 2, 3))
-
-
-def _once(flag, fn, init):
-    """`fn(zero)` where the traced `flag` holds, else `init`, as a while loop of at most one
-    turn: under `vmap` a batch in which no lane needs it skips it (a `cond` would not).
-
-    `fn` must add `zero` (a traced 0.0 that depends on the loop's carry) to an input of its
-    computation: XLA hoists loop-invariant work out of while loops, and an invariant `fn`
-    would then run whether or not the flag holds (measured: 8x the time of a deadbeat
-    solve that never needed it)."""
-    def body(c):
-        zero = jnp.where(c[0], 0.0, jnp.nan)
-        return jnp.asarray(False), fn(zero)
-
-    _, out = jax.lax.while_loop(lambda c: c[0], body, (jnp.asarray(flag), init))
-    return out
-
-
-def _deadbeat_table(apex, goal, h, hopper, tol, table, terrain=None, wind=None,
-                    fallback=True, accept=ACCEPT_C2, first=0, last=None):
-    """The table-start solve: `(th_td, kc, c2, stage)`, `stage` that of the last start run
-    (1-3). Starts `first .. last - 1` (traced; default: all, the multi-start ones only with
-    `fallback`) are tried in order until one ends with C2 <= `accept`; the best end wins.
-    The multi-start guesses are computed only when the loop reaches them."""
-    from ._slip_table import table_starts
-
-    starts, _ = table_starts(table, apex, goal, h, hopper, TABLE_STARTS, terrain, wind)
-    n_all = TABLE_STARTS + N_MULTI
-    last = jnp.where(jnp.asarray(fallback), n_all, TABLE_STARTS) if last is None else last
-    kc_lo, kc_hi = kc_limits(hopper)
-
-    def more(carry):
-        i, _, c2, _ = carry
-        return (i < last) & (c2 > accept)
-
-    def next_start(carry):
-        i, p, c2, guesses = carry
-        guesses = _once((i >= TABLE_STARTS) & jnp.all(jnp.isnan(guesses)),
-                        lambda zero: _initial_guesses(apex + zero, goal, h, hopper, tol,
-                                                      terrain, wind),
-                        guesses)
-        table_start = i < TABLE_STARTS
-        p0 = jnp.where(table_start, starts[jnp.minimum(i, TABLE_STARTS - 1)],
-                       guesses[jnp.clip(i - TABLE_STARTS, 0, N_MULTI - 1)])
-
-        def pick(polish, full):
-            return jnp.where(table_start, polish, full)
-
-        th, kc, c = _deadbeat_gradient(apex, goal, h, hopper, tol, pick(POLISH_ITER, 16),
-                                       pick(POLISH_COST, 1e-16), terrain, wind, p0[None],
-                                       pick(POLISH_MIN_TRUST, 0.0), pick(POLISH_STALL, 0.0))
-        better = c < c2
-        q = jnp.stack([th, (kc - kc_lo) / (kc_hi - kc_lo)])
-        return i + 1, jnp.where(better, q, p), jnp.minimum(c, c2), guesses
-
-    carry = (jnp.asarray(first), starts[0], jnp.asarray(jnp.inf),
-             jnp.full((N_MULTI, 2), jnp.nan))
-    i, p, c2, _ = jax.lax.while_loop(more, next_start, carry)
-    return p[0], kc_lo + p[1] * (kc_hi - kc_lo), c2, _stage_of(jnp.maximum(i - 1, 0))
-
-
 def deadbeat_slip(apex, goal, h, hopper: Hopper, method: str = "gradient",
                   tol: Tolerances = SEARCH_TOL, terrain=None, wind=None, table=None,
-                  fallback=True, accept=ACCEPT_C2, multi_only=False):
+                  fallback=True, accept=1e-8, multi_only=False):
     """Position-aware SLIP deadbeat controls taking `apex` to `goal` over a foothold at `h`.
 
     Arguments:
@@ -496,11 +408,9 @@ def deadbeat_slip(apex, goal, h, hopper: Hopper, method: str = "gradient",
         wind: `"gradient"` only: a horizontal flight acceleration the strides are inverted
             with (the adaptive controller's estimate; `None`: the windless deadbeat as it
             is). `kd` then balances the work the wind does in flight (`energy_kd`).
-        table: `"gradient"` only: a `jaxhop._slip_table.SlipTable` to start from (the
-            staged solve of `_deadbeat_table`); `None`: the multi-start solver alone.
-        fallback: with `table`, whether a target that the table's starts miss (C2 above
-            `accept`) gets the multi-start solver (traced); `multi_only`: that solver
-            alone (traced).
+        table: `"gradient"` only: a `jaxhop._slip_table.SlipTable` to start from
+            (`_slip_table._deadbeat_table`: the multi-start solver only where its starts
+            miss C2 <= `accept` and `fallback`; only it with `multi_only`; both traced).
 
     Returns:
         `(u, ok)`: `u = (th_td, kc, kd)` clipped to the control limits; `ok` when
@@ -514,6 +424,8 @@ def deadbeat_slip(apex, goal, h, hopper: Hopper, method: str = "gradient",
             raise ValueError("the bracket solver is windless; use method='gradient'")
         th, kc = _deadbeat_bracket(apex, goal, h, hopper, tol)
     elif method == "gradient" and table is not None:
+        from ._slip_table import TABLE_STARTS, _deadbeat_table
+
         th, kc, _, _ = _deadbeat_table(apex, goal, h, hopper, tol, table, terrain, wind,
                                        fallback, accept,
                                        jnp.where(multi_only, TABLE_STARTS, 0))
@@ -536,69 +448,3 @@ def _controls(apex, goal, h, th, kc, hopper, tol, terrain=None, wind=None):
 
 
 deadbeat_slip_jit = eqx.filter_jit(deadbeat_slip)
-
-
-# The passes of `deadbeat_slips`: the starts each runs.
-_PASSES = ((0, 1), (1, TABLE_STARTS), (TABLE_STARTS, TABLE_STARTS + N_MULTI))
-
-
-@functools.cache
-def _pass_fn():
-    def one(apex, goal, h, first, last, hopper, table):
-        th, kc, c2, stage = _deadbeat_table(apex, goal, h, hopper, SEARCH_TOL, table,
-                                            first=first, last=last)
-        return th, kc, c2, stage
-
-    return jax.jit(jax.vmap(one, (0, 0, 0, None, None, None, None)))
-
-
-_controls_batch = jax.jit(jax.vmap(lambda a, g, h, th, kc, hopper: _controls(
-    a, g, h, th, kc, hopper, SEARCH_TOL), (0, 0, 0, 0, 0, None)))
-
-
-def deadbeat_slips(apex, goal, h, hopper: Hopper, table=None, accept: float = ACCEPT_C2,
-                   min_batch: int = 8):
-    """`deadbeat_slip` on a batch of targets over flat footholds, with the table's stages as
-    passes over the batch: every target runs the table's best start, only those it misses
-    (C2 above `accept`) run the other table starts, only those still missing run the
-    multi-start solver's starts.
-    Each pass is padded to a power of two (at least `min_batch`), so a few shapes serve
-    every batch, and no lane waits for a solve it does not need.
-
-    Arguments:
-        apex, goal: `(n, 3)`; h: `(n,)` or a scalar. table: default the cached
-        `jaxhop._slip_table.slip_table()`.
-
-    Returns:
-        `(u, ok, stage)` as NumPy arrays: the controls and flags of `deadbeat_slip`, and the
-        last stage each target ran (3: the multi-start fallback).
-    """
-    import numpy as np
-
-    from ._batching import chunk_index
-    from ._slip_table import slip_table
-
-    table = slip_table() if table is None else table
-    apex = np.atleast_2d(np.asarray(apex, float))
-    goal = np.atleast_2d(np.asarray(goal, float))
-    n = apex.shape[0]
-    h = np.broadcast_to(np.asarray(h, float), (n,))
-    th, kc = np.zeros(n), np.zeros(n)
-    c2 = np.full(n, np.inf)
-    stage = np.zeros(n, np.int32)
-    todo = np.arange(n)
-    for first, last in _PASSES:
-        if todo.size == 0:
-            break
-        size = max(min_batch, 1 << (todo.size - 1).bit_length())
-        idx = todo[chunk_index(0, size, todo.size)]
-        out = [np.asarray(x)[: todo.size] for x in
-               _pass_fn()(apex[idx], goal[idx], h[idx], first, last, hopper, table)]
-        better = out[2] < c2[todo]
-        th[todo] = np.where(better, out[0], th[todo])
-        kc[todo] = np.where(better, out[1], kc[todo])
-        c2[todo] = np.minimum(out[2], c2[todo])
-        stage[todo] = out[3]
-        todo = todo[c2[todo] > accept]
-    u, ok = _controls_batch(apex, goal, h, th, kc, hopper)
-    return np.asarray(u), np.asarray(ok), stage

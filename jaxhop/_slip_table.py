@@ -22,6 +22,8 @@ by its grid, the search tolerances and the package version (`docs/slip.md`, "Dea
 
 from __future__ import annotations
 
+import contextlib
+import functools
 import hashlib
 import json
 import os
@@ -33,6 +35,19 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._params import Hopper
+from ._paths import cache_dir
+from ._slip_deadbeat import (
+    KAPPA_HI,
+    KAPPA_LO,
+    SEARCH_TOL,
+    W_POS,
+    W_VEL,
+    _controls,
+    _deadbeat_gradient,
+    _initial_guesses,
+    _trial,
+    kc_limits,
+)
 
 _FORMAT = 1
 
@@ -68,8 +83,6 @@ _UNIT = Hopper(m=1.0, g=1.0, rho0=1.0)
 
 
 def _entry(zeta, nu, eps, th, s, tol):
-    from ._slip_deadbeat import KAPPA_HI, KAPPA_LO, _trial
-
     kc = KAPPA_LO + s * (KAPPA_HI - KAPPA_LO)
     apex = jnp.stack([0.0, zeta, nu])
     goal = jnp.stack([0.0, eps, 0.0])  # only its energy enters eq 12
@@ -84,7 +97,6 @@ def build_table(grid: TableGrid = DEFAULT_GRID, chunk: int = 4096,
     diffrax strides of a unit hopper at the deadbeat's search tolerances, on every device."""
     from ._batching import chunked_map
     from ._progress import Progress
-    from ._slip_deadbeat import SEARCH_TOL
 
     axes = grid.axes()
     mesh = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 5)
@@ -96,7 +108,6 @@ def build_table(grid: TableGrid = DEFAULT_GRID, chunk: int = 4096,
 
 def table_key(grid: TableGrid = DEFAULT_GRID) -> str:
     from . import __version__
-    from ._slip_deadbeat import SEARCH_TOL
 
     payload = {"version": __version__, "format": _FORMAT, "grid": grid.to_list(),
                "tol": [SEARCH_TOL.rtol, SEARCH_TOL.atol]}
@@ -118,25 +129,18 @@ def _read(path: str, key: str, shape: tuple):
     return None
 
 
-class _FileLock:
-    """An exclusive lock on `path` across processes (POSIX `flock`; a no-op without it), so
+@contextlib.contextmanager
+def _file_lock(path: str):
+    """An exclusive lock on `path` across processes (POSIX `flock`; none elsewhere), so
     that processes sharing a cache build the table once."""
-
-    def __init__(self, path: str):
-        self.path, self.f = path, None
-
-    def __enter__(self):
-        try:
-            import fcntl
-        except ImportError:  # pragma: no cover - not POSIX
-            return self
-        self.f = open(self.path, "a")
-        fcntl.flock(self.f, fcntl.LOCK_EX)
-        return self
-
-    def __exit__(self, *exc):
-        if self.f is not None:
-            self.f.close()  # closing releases the lock
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - not POSIX
+        yield
+        return
+    with open(path, "a") as f:
+        fcntl.flock(f, fcntl.LOCK_EX)
+        yield  # closing the file releases the lock
 
 
 def slip_table(grid: TableGrid = DEFAULT_GRID, cache: bool = True,
@@ -147,8 +151,6 @@ def slip_table(grid: TableGrid = DEFAULT_GRID, cache: bool = True,
     build it once (a lock file beside it). `cache=False` builds it without the disk.
     `progress`: a bar while it is built.
     """
-    from ._cache import cache_dir
-
     key = table_key(grid)
     shape = tuple(a.size for a in grid.axes()) + (2,)
     with _LOCK:
@@ -161,7 +163,7 @@ def slip_table(grid: TableGrid = DEFAULT_GRID, cache: bool = True,
             path = os.path.join(cache_dir(), f"slip-table-{key}.npz")
             values = _read(path, key, shape)
             if values is None:
-                with _FileLock(path + ".lock"):
+                with _file_lock(path + ".lock"):
                     values = _read(path, key, shape)  # another process may have built it
                     if values is None:
                         values = build_table(grid, progress=progress)
@@ -274,7 +276,6 @@ def table_starts(table: SlipTable, apex, goal, h, hopper: Hopper, n_starts: int,
     block: `jaxhop._flight.touchdown`) is no start: the table knows flat ground only.
     """
     from ._flight import OK, touchdown
-    from ._slip_deadbeat import W_POS, W_VEL
 
     g = table.grid
     plane = table_slice(table, apex, goal, h, hopper)
@@ -301,3 +302,146 @@ def table_starts(table: SlipTable, apex, goal, h, hopper: Hopper, n_starts: int,
     refined, errs = jax.vmap(lambda p: _refine(plane, p, target, g))(cells)
     order = jnp.argsort(errs)
     return refined[order], errs[order]
+
+
+# Table start (`jaxhop._slip_table`; `docs/slip.md`, "Deadbeat"): Gauss-Newton from one
+# start at a time, each only where the ones before it missed `accept`: the table's
+# TABLE_STARTS refined starts, best first (stage 1: the first; stage 2: the others), then
+# (`fallback`) the multi-start solver's starts (`_initial_guesses`, stage 3). A table start's
+# polish stops at the trial strides' noise floor (SEARCH_TOL moves an apex by ~1e-7 m:
+# POLISH_COST, or three rejected steps in a row), on a target out of reach (an accepted
+# step that gains less than POLISH_STALL of C2), or after POLISH_ITER steps; a multi-start
+# one runs as `_deadbeat_gradient` does. One start at a time keeps a single Gauss-Newton
+# program in the compiled decision (a vmap per stage compiled one per stage: minutes).
+TABLE_STARTS = 3
+POLISH_ITER = 6
+POLISH_COST = 1e-14  # C2 of an apex error of 1e-7 m (m/s)
+POLISH_MIN_TRUST = 1.0 / 64
+POLISH_STALL = 1e-3
+# A deadbeat solve is accepted below this C2 (an apex error of 0.1 mm); a decision accepts
+# its own tolerance (`jaxhop._models.SLIP_STAGE_C2`).
+ACCEPT_C2 = 1e-8
+N_MULTI = 3  # the multi-start solver's starts (`_initial_guesses`)
+
+
+def _once(flag, fn, init):
+    """`fn(zero)` where the traced `flag` holds, else `init`, as a while loop of at most one
+    turn: under `vmap` a batch in which no lane needs it skips it (a `cond` would not).
+
+    `fn` must add `zero` (a traced 0.0 that depends on the loop's carry) to an input of its
+    computation: XLA hoists loop-invariant work out of while loops, and an invariant `fn`
+    would then run whether or not the flag holds (measured: 8x the time of a deadbeat
+    solve that never needed it)."""
+    def body(c):
+        zero = jnp.where(c[0], 0.0, jnp.nan)
+        return jnp.asarray(False), fn(zero)
+
+    _, out = jax.lax.while_loop(lambda c: c[0], body, (jnp.asarray(flag), init))
+    return out
+
+
+def _deadbeat_table(apex, goal, h, hopper, tol, table, terrain=None, wind=None,
+                    fallback=True, accept=ACCEPT_C2, first=0, last=None):
+    """The table-start solve: `(th_td, kc, c2, stage)`, `stage` that of the last start run
+    (1-3). Starts `first .. last - 1` (traced; default: all, the multi-start ones only with
+    `fallback`) are tried in order until one ends with C2 <= `accept`; the best end wins.
+    The multi-start guesses are computed only when the loop reaches them."""
+    starts, _ = table_starts(table, apex, goal, h, hopper, TABLE_STARTS, terrain, wind)
+    n_all = TABLE_STARTS + N_MULTI
+    last = jnp.where(jnp.asarray(fallback), n_all, TABLE_STARTS) if last is None else last
+    kc_lo, kc_hi = kc_limits(hopper)
+
+    def more(carry):
+        i, _, c2, _ = carry
+        return (i < last) & (c2 > accept)
+
+    def next_start(carry):
+        i, p, c2, guesses = carry
+        guesses = _once((i >= TABLE_STARTS) & jnp.all(jnp.isnan(guesses)),
+                        lambda zero: _initial_guesses(apex + zero, goal, h, hopper, tol,
+                                                      terrain, wind),
+                        guesses)
+        table_start = i < TABLE_STARTS
+        p0 = jnp.where(table_start, starts[jnp.minimum(i, TABLE_STARTS - 1)],
+                       guesses[jnp.clip(i - TABLE_STARTS, 0, N_MULTI - 1)])
+
+        def pick(polish, full):
+            return jnp.where(table_start, polish, full)
+
+        th, kc, c = _deadbeat_gradient(apex, goal, h, hopper, tol, pick(POLISH_ITER, 16),
+                                       pick(POLISH_COST, 1e-16), terrain, wind, p0[None],
+                                       pick(POLISH_MIN_TRUST, 0.0), pick(POLISH_STALL, 0.0))
+        better = c < c2
+        q = jnp.stack([th, (kc - kc_lo) / (kc_hi - kc_lo)])
+        return i + 1, jnp.where(better, q, p), jnp.minimum(c, c2), guesses
+
+    carry = (jnp.asarray(first), starts[0], jnp.asarray(jnp.inf),
+             jnp.full((N_MULTI, 2), jnp.nan))
+    i, p, c2, _ = jax.lax.while_loop(more, next_start, carry)
+    stage = jnp.where(i <= 1, 1, jnp.where(i <= TABLE_STARTS, 2, 3))  # of the last start
+    return p[0], kc_lo + p[1] * (kc_hi - kc_lo), c2, stage
+
+
+# The passes of `deadbeat_slips`: the starts each runs.
+_PASSES = ((0, 1), (1, TABLE_STARTS), (TABLE_STARTS, TABLE_STARTS + N_MULTI))
+
+
+@functools.cache
+def _pass_fn():
+    def one(apex, goal, h, first, last, hopper, table):
+        th, kc, c2, stage = _deadbeat_table(apex, goal, h, hopper, SEARCH_TOL, table,
+                                            first=first, last=last)
+        return th, kc, c2, stage
+
+    return jax.jit(jax.vmap(one, (0, 0, 0, None, None, None, None)))
+
+
+_controls_batch = jax.jit(jax.vmap(lambda a, g, h, th, kc, hopper: _controls(
+    a, g, h, th, kc, hopper, SEARCH_TOL), (0, 0, 0, 0, 0, None)))
+
+
+def deadbeat_slips(apex, goal, h, hopper: Hopper, table=None, accept: float = ACCEPT_C2,
+                   min_batch: int = 8):
+    """`deadbeat_slip` on a batch of targets over flat footholds, with the table's stages as
+    passes over the batch: every target runs the table's best start, only those it misses
+    (C2 above `accept`) run the other table starts, only those still missing run the
+    multi-start solver's starts.
+    Each pass is padded to a power of two (at least `min_batch`), so a few shapes serve
+    every batch, and no lane waits for a solve it does not need.
+
+    Arguments:
+        apex, goal: `(n, 3)`; h: `(n,)` or a scalar. table: default the cached
+        `jaxhop._slip_table.slip_table()`.
+
+    Returns:
+        `(u, ok, stage)` as NumPy arrays: the controls and flags of `deadbeat_slip`, and the
+        last stage each target ran (3: the multi-start fallback).
+    """
+    import numpy as np
+
+    from ._batching import chunk_index
+
+    table = slip_table() if table is None else table
+    apex = np.atleast_2d(np.asarray(apex, float))
+    goal = np.atleast_2d(np.asarray(goal, float))
+    n = apex.shape[0]
+    h = np.broadcast_to(np.asarray(h, float), (n,))
+    th, kc = np.zeros(n), np.zeros(n)
+    c2 = np.full(n, np.inf)
+    stage = np.zeros(n, np.int32)
+    todo = np.arange(n)
+    for first, last in _PASSES:
+        if todo.size == 0:
+            break
+        size = max(min_batch, 1 << (todo.size - 1).bit_length())
+        idx = todo[chunk_index(0, size, todo.size)]
+        out = [np.asarray(x)[: todo.size] for x in
+               _pass_fn()(apex[idx], goal[idx], h[idx], first, last, hopper, table)]
+        better = out[2] < c2[todo]
+        th[todo] = np.where(better, out[0], th[todo])
+        kc[todo] = np.where(better, out[1], kc[todo])
+        c2[todo] = np.minimum(out[2], c2[todo])
+        stage[todo] = out[3]
+        todo = todo[c2[todo] > accept]
+    u, ok = _controls_batch(apex, goal, h, th, kc, hopper)
+    return np.asarray(u), np.asarray(ok), stage

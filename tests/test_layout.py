@@ -15,9 +15,9 @@ PACKAGE = pathlib.Path(__file__).parent.parent / "jaxhop"
 # The pipeline, in order: a module may import from its own stage or an earlier one.
 STAGES = [
     ["__init__"],  # re-exports only; checked separately below
-    ["_errors", "_params", "_validate", "_result"],
+    ["_errors", "_params", "_paths", "_validate", "_result"],
     ["_terrain", "_batching", "_progress"],
-    ["_bhop", "_flight", "_slip", "_slip_deadbeat"],
+    ["_bhop", "_flight", "_slip", "_slip_deadbeat", "_slip_table"],
     ["_templates"],
     ["_regions", "_policies"],
     ["_graph", "_deploy", "_stages", "_plan"],

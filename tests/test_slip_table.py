@@ -15,8 +15,15 @@ import pytest
 from jaxhop import Hopper
 from jaxhop import reference as R
 from jaxhop._slip import slip_apex_map
-from jaxhop._slip_deadbeat import KAPPA_HI, KAPPA_LO, deadbeat_slips
-from jaxhop._slip_table import DEFAULT_GRID, TableGrid, _refine, slip_table, table_starts
+from jaxhop._slip_deadbeat import KAPPA_HI, KAPPA_LO
+from jaxhop._slip_table import (
+    DEFAULT_GRID,
+    TableGrid,
+    _refine,
+    deadbeat_slips,
+    slip_table,
+    table_starts,
+)
 from jaxhop.reference import _slip as RS
 
 HOP = Hopper()

@@ -509,9 +509,10 @@ def table_starts(values, grid, apex, goal, h, hopper: Hopper, n_starts=TABLE_STA
 
 def _staged(apex, goal, h, hopper: Hopper, sqrt_w, table, terrain, fallback, accept,
             first=0):
-    """`_deadbeat_table`: one start at a time from start `first` until one ends with C2 <=
-    `accept` (the table's starts, best first, with the polish's stops, then with `fallback`
-    the multi-start solver's starts as it runs them); the best end wins. Returns
+    """`jaxhop._slip_table._deadbeat_table`: one start at a time from start `first` until
+    one ends with C2 <= `accept` (the table's starts, best first, with the polish's stops,
+    then with `fallback` the multi-start solver's starts as it runs them); the best end
+    wins. Returns
     `(p, C2, stage)`."""
     starts = table_starts(*table, apex, goal, h, hopper, TABLE_STARTS, terrain)
     n_all = TABLE_STARTS + 3 if fallback else TABLE_STARTS
