@@ -318,7 +318,7 @@ def bench_slip_deadbeat(quick: bool):
     m_hit = within_1mm(apex, goal, np.asarray(mu))
     every = 128 if quick else 32
     sub = np.arange(0, n, every)
-    rtab = (np.asarray(table.values), table.grid.to_list())
+    rtab = table.data()
     t0 = time.perf_counter()
     ref = [RS.deadbeat_slip(apex[i], goal[i], 0.0, R.Hopper(), table=rtab, full=True)
            for i in sub]
@@ -367,7 +367,7 @@ def bench_slip_decision(jp):
             times.append(time.perf_counter() - t0)
     rt, rtm = to_reference(jp.terrain, jp.templates)
     ctrl = R.Controller(reference_plan_with(jp, R.situate(rt, rtm, R.Hopper())),
-                        slip_table=(np.asarray(tables.slip.values), tables.slip.grid.to_list()))
+                        slip_table=tables.slip.data())
     ref_times = []
     for z in states[::8]:
         t0 = time.perf_counter()
@@ -401,7 +401,7 @@ def bench_slip_sweep(jp, quick: bool):
     rt, rtm = to_reference(terrain, jp.templates)
     tab = jp.tables(slip=True).slip
     ctrl = R.Controller(reference_plan_with(jp, R.situate(rt, rtm, R.Hopper())),
-                        slip_table=(np.asarray(tab.values), tab.grid.to_list()))
+                        slip_table=tab.data())
     t0 = time.perf_counter()
     ref = R.run_batch(ctrl, runs[pick], model="slip")
     numpy_s = (time.perf_counter() - t0) * n_jax / n_ref

@@ -78,6 +78,11 @@ class SlipTable(eqx.Module):
     values: jnp.ndarray
     grid: TableGrid = eqx.field(static=True, default=DEFAULT_GRID)
 
+    def data(self):
+        """`(values, grid)` as NumPy values and the five `(lo, hi, n)` axes: what the twin
+        (`jaxhop.reference._slip_table`) reads."""
+        return np.asarray(self.values), self.grid.to_list()
+
 
 _UNIT = Hopper(m=1.0, g=1.0, rho0=1.0)
 
@@ -204,10 +209,9 @@ def table_slice(table: SlipTable, apex, goal, h, hopper: Hopper):
                                  (2, 2, 2) + table.values.shape[3:])
     w = (jnp.stack([1 - wz, wz])[:, None, None] * jnp.stack([1 - wv, wv])[None, :, None]
          * jnp.stack([1 - we, we])[None, None, :])
-    out = jnp.einsum("abc,abcijk->ijk", w, cube)
-    # A cell with a failed corner is NaN (no start there): next to the failure boundary the
-    # map is steep and a start from it often fails.
-    return out
+    # A failed corner's NaN carries into its cells (no start there): next to the failure
+    # boundary the map is steep and a start from it often fails.
+    return jnp.einsum("abc,abcijk->ijk", w, cube)
 
 
 def _target(apex, goal, hopper: Hopper):
@@ -417,8 +421,6 @@ def deadbeat_slips(apex, goal, h, hopper: Hopper, table=None, accept: float = AC
         `(u, ok, stage)` as NumPy arrays: the controls and flags of `deadbeat_slip`, and the
         last stage each target ran (3: the multi-start fallback).
     """
-    import numpy as np
-
     from ._batching import chunk_index
 
     table = slip_table() if table is None else table

@@ -227,7 +227,7 @@ def test_slip_sweep_subsample_against_jax():
     out = run_batch(jp, sub, model="slip", chunk=16)
     # The run loop decides with the table-start deadbeat: so does the twin, on its values.
     tab = jp.tables(slip=True).slip
-    ctrl.slip_table = (np.asarray(tab.values), tab.grid.to_list())
+    ctrl.slip_table = tab.data()
     same_code = same_steps = 0
     for i, z0 in enumerate(sub):
         code, steps, apexes = R.run_one(ctrl, z0, model="slip")

@@ -111,7 +111,7 @@ def test_staged_solve_equals_twin(table):
     two Jacobians may lead the polish to different ones.)"""
     apex, goal = reachable(4, 8)
     u, ok, stage = deadbeat_slips(apex, goal, 0.0, HOP, table)
-    values = (np.asarray(table.values), table.grid.to_list())
+    values = table.data()
     for i in range(apex.shape[0]):
         ur, okr, _ = RS.deadbeat_slip(apex[i], goal[i], 0.0, R.Hopper(), table=values,
                                       full=True)

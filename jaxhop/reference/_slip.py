@@ -408,134 +408,9 @@ def _multi_start(apex, goal, h, hopper: Hopper, sqrt_w, method="gauss-newton", t
     return best, best_cost
 
 
-# The table start (twin of `jaxhop._slip_table` and `_deadbeat_table`); the table's values
-# are data: a `(values, grid)` pair, `grid` the five `(lo, hi, n)` axes.
-TABLE_STARTS = 3
-POLISH_ITER = 6
-POLISH_COST = 1e-14
-POLISH_MIN_TRUST = 1.0 / 64
-POLISH_STALL = 1e-3
-ACCEPT_C2 = 1e-8
-REFINE_STEPS = 12
-REFINE_MAX = np.array([0.1, 0.3])
-
-
-def _locate(x, lo, hi, n):
-    f = min(max((x - lo) / (hi - lo) * (n - 1), 0.0), n - 1 - 1e-9)
-    i = math.floor(f)
-    return i, f - i
-
-
-def table_slice(values, grid, apex, goal, h, hopper: Hopper):
-    """The table's `(th, s)` plane for the stride, trilinear in `(zeta, nu, eps)`."""
-    vs = math.sqrt(hopper.g * hopper.rho0)
-    x = ((apex[1] - h) / hopper.rho0, apex[2] / vs,
-         (goal[1] - h + 0.5 * goal[2] ** 2 / hopper.g) / hopper.rho0)
-    (iz, wz), (iv, wv), (ie, we) = (_locate(v, *a) for v, a in zip(x, grid[:3]))
-    cube = values[iz:iz + 2, iv:iv + 2, ie:ie + 2]
-    w = (np.array([1 - wz, wz])[:, None, None] * np.array([1 - wv, wv])[None, :, None]
-         * np.array([1 - we, we])[None, None, :])
-    return np.einsum("abc,abcijk->ijk", w, cube)
-
-
-def _bilinear(plane, p, grid):
-    th_ax, s_ax = grid[3], grid[4]
-    (i, wi), (j, wj) = _locate(p[0], *th_ax), _locate(p[1], *s_ax)
-    c = plane[i:i + 2, j:j + 2]
-    value = ((1 - wi) * (1 - wj) * c[0, 0] + wi * (1 - wj) * c[1, 0]
-             + (1 - wi) * wj * c[0, 1] + wi * wj * c[1, 1])
-    d_th = ((c[1, 0] - c[0, 0]) * (1 - wj) + (c[1, 1] - c[0, 1]) * wj) * (
-        (th_ax[2] - 1) / (th_ax[1] - th_ax[0]))
-    d_s = ((c[0, 1] - c[0, 0]) * (1 - wi) + (c[1, 1] - c[1, 0]) * wi) * (
-        (s_ax[2] - 1) / (s_ax[1] - s_ax[0]))
-    return value, np.stack([d_th, d_s], axis=1)
-
-
-def _refine(plane, p0, target, grid):
-    """`jaxhop._slip_table._refine`: damped Gauss-Newton on the plane's interpolant."""
-    lo = np.array([grid[3][0], grid[4][0]])
-    hi = np.array([grid[3][1], grid[4][1]])
-
-    def err2(p):
-        r = _bilinear(plane, p, grid)[0] - target
-        return float(r @ r) if np.all(np.isfinite(r)) else INF
-
-    p, e, trust = np.asarray(p0, float), err2(p0), 1.0
-    for _ in range(REFINE_STEPS):
-        value, jac = _bilinear(plane, p, grid)
-        normal = jac.T @ jac
-        try:
-            d = np.linalg.solve(normal + 1e-12 * np.trace(normal) * np.eye(2),
-                                jac.T @ (value - target))
-        except np.linalg.LinAlgError:
-            d = np.zeros(2)
-        d = np.clip(trust * d if np.all(np.isfinite(d)) else np.zeros(2), -REFINE_MAX,
-                    REFINE_MAX)
-        q = np.clip(p - d, lo, hi)
-        eq = err2(q)
-        if eq < e:
-            p, e, trust = q, eq, min(2.0 * trust, 1.0)
-        else:
-            trust = 0.25 * trust
-    return p, e
-
-
-def table_starts(values, grid, apex, goal, h, hopper: Hopper, n_starts=TABLE_STARTS,
-                 terrain=None):
-    """`n_starts` refined table starts `(th, s)`, best first (`jaxhop._slip_table`)."""
-    plane = table_slice(values, grid, apex, goal, h, hopper)
-    target = np.array([(goal[0] - apex[0]) / hopper.rho0,
-                       goal[2] / math.sqrt(hopper.g * hopper.rho0)])
-    scale = np.array([hopper.rho0, math.sqrt(hopper.g * hopper.rho0)])
-    err = (plane - target) * scale
-    cost = W_POS * err[..., 0] ** 2 + W_VEL * err[..., 1] ** 2
-    cost = np.where(np.isfinite(cost), cost, INF)
-    th_axis = np.linspace(*grid[3])
-    if terrain is not None:
-        for k, th in enumerate(th_axis):
-            offset = (hopper.rho0 * math.sin(th), -hopper.rho0 * math.cos(th))
-            code, block, *_ = touchdown_one(apex, terrain, hopper, 0.0, offset)
-            if not (code == OK and terrain.heights[block] == h):
-                cost[k] = INF
-                plane[k] = np.nan
-    s_axis = np.linspace(*grid[4])
-    col = cost.min(axis=0)
-    cols = np.argsort(col, kind="stable")[:n_starts]  # as lax.top_k: ties to the lower
-    cells = [(th_axis[int(np.argmin(cost[:, c]))], s_axis[c]) for c in cols]
-    refined = [_refine(plane, p, target, grid) for p in cells]
-    order = np.argsort([e for _, e in refined], kind="stable")
-    return [refined[i][0] for i in order]
-
-
-def _staged(apex, goal, h, hopper: Hopper, sqrt_w, table, terrain, fallback, accept,
-            first=0):
-    """`jaxhop._slip_table._deadbeat_table`: one start at a time from start `first` until
-    one ends with C2 <= `accept` (the table's starts, best first, with the polish's stops,
-    then with `fallback` the multi-start solver's starts as it runs them); the best end
-    wins. Returns
-    `(p, C2, stage)`."""
-    starts = table_starts(*table, apex, goal, h, hopper, TABLE_STARTS, terrain)
-    n_all = TABLE_STARTS + 3 if fallback else TABLE_STARTS
-    best, cost, i, guesses = np.asarray(starts[0], float), INF, first, None
-    while i < n_all and cost > accept:
-        if i < TABLE_STARTS:
-            end, c = _gauss_newton(starts[i], apex, goal, h, hopper, sqrt_w, POLISH_ITER,
-                                   POLISH_COST, terrain, POLISH_MIN_TRUST, POLISH_STALL)
-        else:
-            if guesses is None:
-                guesses = initial_guesses(apex, goal, h, hopper, terrain)
-            end, c = _gauss_newton(guesses[i - TABLE_STARTS], apex, goal, h, hopper, sqrt_w,
-                                   terrain=terrain)
-        if c < cost:
-            best, cost = np.asarray(end, float), c
-        i += 1
-    stage = 1 if i <= 1 else (2 if i <= TABLE_STARTS else 3)
-    return best, cost, stage
-
-
 def deadbeat_slip(apex, goal, h, hopper: Hopper, method: str = "gauss-newton",
                   terrain: Terrain | None = None, table=None, fallback=True,
-                  accept=ACCEPT_C2, multi_only=False, full=False):
+                  accept=1e-8, multi_only=False, full=False):
     """Position-aware SLIP deadbeat `(u, ok)` from `apex` to `goal` over a foothold at `h`.
 
     `u = (th_td, kc, kd)` clipped to the limits; `ok` when no clipping was needed and the
@@ -559,6 +434,8 @@ def deadbeat_slip(apex, goal, h, hopper: Hopper, method: str = "gauss-newton",
     if table is None:
         best, _ = _multi_start(apex, goal, h, hopper, sqrt_w, method, terrain)
     else:
+        from ._slip_table import TABLE_STARTS, _staged
+
         best, _, stage = _staged(apex, goal, h, hopper, sqrt_w, table, terrain, fallback,
                                  accept, TABLE_STARTS if multi_only else 0)
     th, s = _clip_p(best)
