@@ -4,8 +4,8 @@ Courses: `load_course`, `list_courses`, `random_course`, `course_from_dict`, `Co
 `Environment`, `reference_results`. Robot: `Robot`, `foot_offset`, `knee_offset` (eqs
 1-4). Planning: `min_time_jump` (one pair, JAX), `MPPC` / `Settings` (one replan),
 `Replanner` (the replans of one run), `run_course` (the receding-horizon loop) with `Jump`,
-`Plan`, `ParkourResult`. Checking: `check_jump` (independent NumPy checker). Figures:
-`plot_run`.
+`Plan`, `ParkourResult`. Disturbances: `Observer` (wind estimate and landing room from
+past landings). Checking: `check_jump` (independent NumPy checker). Figures: `plot_run`.
 """
 
 from ._check import check_jump as check_jump
@@ -17,6 +17,7 @@ from ._course import load_course as load_course
 from ._course import random_course as random_course
 from ._course import reference_results as reference_results
 from ._jump import min_time_jump as min_time_jump
+from ._observe import Observer as Observer
 from ._plan import MPPC as MPPC
 from ._plan import Jump as Jump
 from ._plan import Plan as Plan

@@ -3,7 +3,9 @@
 Written apart from the planner's closed forms: it integrates nothing analytically, but
 samples the ballistic flight of the hip (eqs 6-9) at many instants, places the foot and
 knee with the flight-configuration offsets, and tests every rule on the samples (faces
-are located by linear interpolation between samples).
+are located by linear interpolation between samples). A flight in wind (a constant
+horizontal acceleration `a`) adds `a tau^2 / 2` to the hip's horizontal position at time
+`tau`.
 """
 
 import math
@@ -20,9 +22,11 @@ KINDS = ("bounds", "takeoff_height", "landing_height", "edge_margin", "restricte
          "foot_clearance", "knee_clearance", "collision")
 
 
-def _paths(robot: Robot, xs, zs, v, theta, t):
+def _paths(robot: Robot, xs, zs, v, theta, t, wind=0.0):
     tau = np.linspace(0.0, t, N_SAMPLES)
     hip_x = xs + robot.r_takeoff * math.cos(theta) + v * math.cos(theta) * tau
+    if wind:
+        hip_x = hip_x + 0.5 * wind * tau**2
     hip_z = (zs + robot.r_takeoff * math.sin(theta) + v * math.sin(theta) * tau
              - 0.5 * robot.g * tau**2)
     foot_dx = -robot.r_flight * math.cos(robot.theta_flight)
@@ -33,16 +37,18 @@ def _paths(robot: Robot, xs, zs, v, theta, t):
 
 
 def _heights_at_face(px, pz, face):
-    # Heights where a sampled path (x increasing) passes x = face, by interpolation.
-    k = np.searchsorted(px, face)
-    if k == 0 or k >= len(px) or not (px[0] < face < px[-1]):
+    # Lowest height where a sampled path passes x = face (by interpolation; in strong wind
+    # the path need not move forward all the way, so every crossing counts).
+    d = px - face
+    k = np.nonzero(((d[:-1] < 0) & (d[1:] >= 0)) | ((d[:-1] > 0) & (d[1:] <= 0)))[0]
+    if not (px.min() < face < px.max()) or not k.size:
         return None
-    w = (face - px[k - 1]) / (px[k] - px[k - 1])
-    return pz[k - 1] + w * (pz[k] - pz[k - 1])
+    w = (face - px[k]) / (px[k + 1] - px[k])
+    return float(np.min(pz[k] + w * (pz[k + 1] - pz[k])))
 
 
 def check_jump(robot: Robot, course: Course, env: Environment, jump,
-               check_takeoff: bool = True) -> list:
+               check_takeoff: bool = True, wind: float = 0.0) -> list:
     """All constraint violations of one executed jump.
 
     Rules: eq 5 bounds on `v`, `theta`, `t`; takeoff on the surface; the landing contact
@@ -56,6 +62,8 @@ def check_jump(robot: Robot, course: Course, env: Environment, jump,
     - `jump`: anything with `xs, zs, v, theta, t` (the landing is recomputed here).
     - `check_takeoff`: also require the takeoff on the surface of `env` (a run turns this
       off when a snapshot moved a block under the standing robot).
+    - `wind`: the horizontal acceleration the jump is flown in (m/s^2; the hip's path
+      and the landing point include it; 0: still air).
 
     **Returns:** a list of `(kind, message)` pairs, empty for a clean jump; `kind` is one
     of `KINDS`.
@@ -74,7 +82,7 @@ def check_jump(robot: Robot, course: Course, env: Environment, jump,
     surf0 = float(env.surface(xs))
     if check_takeoff and abs(zs - surf0) > TOL:
         out.append(("takeoff_height", f"takeoff at z={zs:.4f}, surface there is {surf0:.4f}"))
-    (fx, fz), (kx, kz) = _paths(robot, xs, zs, v, th, t)
+    (fx, fz), (kx, kz) = _paths(robot, xs, zs, v, th, t, float(wind))
     x1, z1 = fx[-1], fz[-1]
     surf1 = float(env.surface(x1))
     if abs(z1 - surf1) > TOL:

@@ -23,22 +23,26 @@ class Replanner:
 
     Replan `k` (0-based) sees the environment in force at `k` (`course.environment_at`);
     each environment's landing candidates and goal reachability are computed on its first
-    replan and kept.
+    replan (per room, `Settings.round_room`) and kept.
     """
 
     def __init__(self, planner: MPPC, course: Course):
         self.planner, self.course = planner, course
-        self._data: dict[int, _EnvData] = {}
+        self._data: dict[tuple, _EnvData] = {}
 
-    def warm_up(self, x: float, z: float, times: int) -> None:
+    def warm_up(self, x: float, z: float, times: int, wind: float | None = None) -> None:
         """Plan the first horizon from `(x, z)` `times` times, untimed and not kept, so that
         compilation (once per set of padded sizes) is not counted in the replan times."""
         data = _EnvData(self.planner, self.course, self.course.environment_at(0))
         for _ in range(times):
-            self.planner.replan(self.course, data, x, z)
+            self.planner.replan(self.course, data, x, z, wind)
 
-    def __call__(self, k: int, x: float, z: float | None = None):
+    def __call__(self, k: int, x: float, z: float | None = None, wind: float | None = None,
+                 room: float = 0.0):
         """Replan `k` from contact point `(x, z)`; `z=None`: the surface under `x`.
+
+        `wind` (m/s^2) and `room` (m, rounded up by `Settings.round_room`): see
+        `MPPC.replan` and `_EnvData`.
 
         **Returns:** `(plan, env, ms)`: the `Plan` (`None` if no jump is possible), the
         environment it was planned on and the replan's wall time in milliseconds (a new
@@ -46,12 +50,14 @@ class Replanner:
         """
         env = self.course.environment_at(k)
         t0 = time.perf_counter()
-        data = self._data.get(id(env))
+        room = self.planner.settings.round_room(room)
+        data = self._data.get((id(env), room))
         if data is None:
-            data = self._data[id(env)] = _EnvData(self.planner, self.course, env)
+            data = self._data[(id(env), room)] = _EnvData(self.planner, self.course, env,
+                                                          room)
         if z is None:
             z = float(env.surface(x))
-        plan = self.planner.replan(self.course, data, x, z)
+        plan = self.planner.replan(self.course, data, x, z, wind)
         return plan, env, (time.perf_counter() - t0) * 1e3
 
 
