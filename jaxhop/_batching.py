@@ -80,3 +80,19 @@ def pad_terrain(t: Terrain, n: int) -> Terrain:
     end, h = t.ends[-1], t.heights[-1]
     return Terrain(pad_to(t.starts, n, end), pad_to(t.ends, n, end),
                    pad_to(t.heights, n, h), t.name, None)
+
+
+def run_once(flag, fn, init):
+    """`fn(zero)` where the traced `flag` holds, else `init`, as a while loop of at most one
+    turn: under `vmap` a batch in which no lane needs it skips it (a `cond` would not).
+
+    `fn` must add `zero` (a traced 0.0 that depends on the loop's carry) to an input of its
+    computation: XLA hoists loop-invariant work out of while loops, and an invariant `fn`
+    would then run whether or not the flag holds (measured: 8x the time of a deadbeat
+    solve that never needed it)."""
+    def body(c):
+        zero = jnp.where(c[0], 0.0, jnp.nan)
+        return jnp.asarray(False), fn(zero)
+
+    _, out = jax.lax.while_loop(lambda c: c[0], body, (jnp.asarray(flag), init))
+    return out

@@ -22,10 +22,8 @@ Two solvers:
 - `"gradient"`: the two problems solved jointly over `(th_td, kc)` (`kd` still from eq 12)
   by damped Gauss-Newton steps applied with optax, the Jacobian from forward-mode
   differentiation through diffrax (`ForwardMode`), started from three points of a coarse
-  grid. It is the default: measured 10-30x faster per target than `"bracket"`, and
-  more accurate (docs/slip.md). optax L-BFGS on C2 was tried first and stalled at
-  1e-4..1e-3 m after 60 iterations (a curved valley in `(th_td, kc)`); Gauss-Newton
-  converges in a few steps.
+  grid. It is the default: 10-30x faster per target than `"bracket"` and more accurate;
+  L-BFGS on C2 stalls in its curved valley in `(th_td, kc)` (docs/slip.md).
 
 One sample per call; vmap for batches.
 """
@@ -37,6 +35,7 @@ import jax.numpy as jnp
 import optax
 import optimistix as optx
 
+from ._batching import run_once
 from ._bhop import safe_sqrt
 from ._flight import OK, touchdown
 from ._params import Hopper
@@ -105,13 +104,18 @@ def _wind_kd(apex, goal, h, th, kc, x_b, v_td, hopper: Hopper, tol: Tolerances, 
     """Eq 12's `kd` with a wind `a` in flight (`energy_kd`): the rise time `t_up` is first
     that of a mirrored stance (liftoff at `h + rho0 cos th_td`), then that of the liftoff
     this first `kd` gives, which leaves an energy error of second order in the change of
-    the liftoff between the two."""
+    the liftoff between the two. Without wind both are the same: the second decompression
+    runs only where `wind != 0` (`run_once`; under `vmap`, not in a windless batch)."""
     t_up = mirrored_rise_time(goal, h, th, hopper)
     kd = energy_kd(apex, goal, kc, x_b[0], hopper, v_td[0], goal[2] - wind * t_up)
-    x_lo, _ = decompress(x_b, jnp.where(kd > 0, kd, kc), hopper, tol)
-    _, v_lo = _cartesian(x_lo)
-    t_up = jnp.maximum(v_lo[1], 0.0) / hopper.g
-    return energy_kd(apex, goal, kc, x_b[0], hopper, v_td[0], goal[2] - wind * t_up)
+
+    def second(zero):
+        x_lo, _ = decompress(x_b + zero, jnp.where(kd > 0, kd, kc), hopper, tol)
+        _, v_lo = _cartesian(x_lo)
+        t_lo = jnp.maximum(v_lo[1], 0.0) / hopper.g
+        return energy_kd(apex, goal, kc, x_b[0], hopper, v_td[0], goal[2] - wind * t_lo)
+
+    return run_once(wind != 0.0, second, kd)
 
 
 def _trial(apex, goal, h, th, kc, hopper: Hopper, tol: Tolerances, terrain=None, wind=None):
@@ -401,23 +405,19 @@ def deadbeat_slip(apex, goal, h, hopper: Hopper, method: str = "gradient",
         apex, goal: `(y, z, ydot)` in the world frame.
         h: the foothold's height.
         method: `"gradient"` (Gauss-Newton through diffrax, optax steps; the default) or
-            `"bracket"` (nested bisection / golden section).
-        tol: integration tolerances of the trial strides.
+            `"bracket"` (nested bisection / golden section), trial strides at `tol`.
         terrain: `"gradient"` only: plan each trial stride on the block its foot lands on
             in this map (the execution controller passes the planner's map), not on `h`.
-        wind: `"gradient"` only: a horizontal flight acceleration the strides are inverted
-            with (the adaptive controller's estimate; `None`: the windless deadbeat as it
-            is). `kd` then balances the work the wind does in flight (`energy_kd`).
+        wind: `"gradient"` only: the horizontal flight acceleration the strides are
+            inverted with (`None`: none); `kd` balances its work in flight (`energy_kd`).
         table: `"gradient"` only: a `jaxhop._slip_table.SlipTable` to start from
-            (`_slip_table._deadbeat_table`: the multi-start solver only where its starts
-            miss C2 <= `accept` and `fallback`; only it with `multi_only`; both traced).
+            (`_slip_table._deadbeat_table`; the multi-start solver only where its starts
+            miss C2 <= `accept` and `fallback`, only it with `multi_only`; both traced).
 
     Returns:
-        `(u, ok)`: `u = (th_td, kc, kd)` clipped to the control limits; `ok` when
-        no clipping was needed and the trial stride with `u` completes.
-
-    Raises:
-        ValueError: an unknown `method`.
+        `(u, ok)`: `u = (th_td, kc, kd)` clipped to the control limits; `ok` when no
+        clipping was needed and the trial stride with `u` completes. `ValueError`: an
+        unknown `method`.
     """
     if method == "bracket":
         if wind is not None:

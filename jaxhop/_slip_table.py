@@ -34,6 +34,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._batching import run_once
 from ._params import Hopper
 from ._paths import cache_dir
 from ._slip_deadbeat import (
@@ -315,8 +316,8 @@ def table_starts(table: SlipTable, apex, goal, h, hopper: Hopper, n_starts: int,
 # polish stops at the trial strides' noise floor (SEARCH_TOL moves an apex by ~1e-7 m:
 # POLISH_COST, or three rejected steps in a row), on a target out of reach (an accepted
 # step that gains less than POLISH_STALL of C2), or after POLISH_ITER steps; a multi-start
-# one runs as `_deadbeat_gradient` does. One start at a time keeps a single Gauss-Newton
-# program in the compiled decision (a vmap per stage compiled one per stage: minutes).
+# one has the same stops after up to MULTI_ITER steps. One start at a time keeps a single
+# Gauss-Newton program in the compiled decision (a vmap per stage compiled one per stage).
 TABLE_STARTS = 3
 POLISH_ITER = 6
 POLISH_COST = 1e-14  # C2 of an apex error of 1e-7 m (m/s)
@@ -326,22 +327,7 @@ POLISH_STALL = 1e-3
 # its own tolerance (`jaxhop._models.SLIP_STAGE_C2`).
 ACCEPT_C2 = 1e-8
 N_MULTI = 3  # the multi-start solver's starts (`_initial_guesses`)
-
-
-def _once(flag, fn, init):
-    """`fn(zero)` where the traced `flag` holds, else `init`, as a while loop of at most one
-    turn: under `vmap` a batch in which no lane needs it skips it (a `cond` would not).
-
-    `fn` must add `zero` (a traced 0.0 that depends on the loop's carry) to an input of its
-    computation: XLA hoists loop-invariant work out of while loops, and an invariant `fn`
-    would then run whether or not the flag holds (measured: 8x the time of a deadbeat
-    solve that never needed it)."""
-    def body(c):
-        zero = jnp.where(c[0], 0.0, jnp.nan)
-        return jnp.asarray(False), fn(zero)
-
-    _, out = jax.lax.while_loop(lambda c: c[0], body, (jnp.asarray(flag), init))
-    return out
+MULTI_ITER = 16  # their longest polish (the same stops as a table start's)
 
 
 def _deadbeat_table(apex, goal, h, hopper, tol, table, terrain=None, wind=None,
@@ -361,7 +347,7 @@ def _deadbeat_table(apex, goal, h, hopper, tol, table, terrain=None, wind=None,
 
     def next_start(carry):
         i, p, c2, guesses = carry
-        guesses = _once((i >= TABLE_STARTS) & jnp.all(jnp.isnan(guesses)),
+        guesses = run_once((i >= TABLE_STARTS) & jnp.all(jnp.isnan(guesses)),
                         lambda zero: _initial_guesses(apex + zero, goal, h, hopper, tol,
                                                       terrain, wind),
                         guesses)
@@ -369,12 +355,10 @@ def _deadbeat_table(apex, goal, h, hopper, tol, table, terrain=None, wind=None,
         p0 = jnp.where(table_start, starts[jnp.minimum(i, TABLE_STARTS - 1)],
                        guesses[jnp.clip(i - TABLE_STARTS, 0, N_MULTI - 1)])
 
-        def pick(polish, full):
-            return jnp.where(table_start, polish, full)
-
-        th, kc, c = _deadbeat_gradient(apex, goal, h, hopper, tol, pick(POLISH_ITER, 16),
-                                       pick(POLISH_COST, 1e-16), terrain, wind, p0[None],
-                                       pick(POLISH_MIN_TRUST, 0.0), pick(POLISH_STALL, 0.0))
+        th, kc, c = _deadbeat_gradient(apex, goal, h, hopper, tol,
+                                       jnp.where(table_start, POLISH_ITER, MULTI_ITER),
+                                       POLISH_COST, terrain, wind, p0[None],
+                                       POLISH_MIN_TRUST, POLISH_STALL)
         better = c < c2
         q = jnp.stack([th, (kc - kc_lo) / (kc_hi - kc_lo)])
         return i + 1, jnp.where(better, q, p), jnp.minimum(c, c2), guesses

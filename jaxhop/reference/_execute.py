@@ -33,6 +33,7 @@ _BIG = np.iinfo(np.int32).max
 SLIP_CANDIDATES = 2
 SLIP_ACCEPT = np.array([0.05, 0.05, 0.05])
 SLIP_STAGE_C2 = 1e-4  # jaxhop._models.SLIP_STAGE_C2
+SLIP_FALLBACKS = 1  # jaxhop._models.SLIP_FALLBACKS
 
 
 class Controller:
@@ -131,10 +132,11 @@ class Controller:
             us, misses = map(list, zip(*(one(c) for c in range(len(order)))))
         else:
             # `jaxhop._models._first_accepted`: the candidates in order from the table's
-            # starts until one is accepted, then the multi-start solver in order.
+            # starts until one is accepted, then the first SLIP_FALLBACKS with the
+            # multi-start solver.
             us, misses = [np.zeros(3)] * len(order), [np.inf] * len(order)
             tries = [(c, False) for c in range(len(order))]
-            tries += [(c, True) for c in range(len(order))]
+            tries += [(c, True) for c in range(min(len(order), SLIP_FALLBACKS))]
             for c, multi in tries:
                 if min(misses) <= 1.0:
                     break

@@ -24,6 +24,7 @@ POLISH_ITER = 6
 POLISH_COST = 1e-14
 POLISH_MIN_TRUST = 1.0 / 64
 POLISH_STALL = 1e-3
+MULTI_ITER = 16
 REFINE_STEPS = 12
 REFINE_MAX = np.array([0.1, 0.3])
 
@@ -118,9 +119,8 @@ def table_starts(values, grid, apex, goal, h, hopper: Hopper, n_starts=TABLE_STA
 def _staged(apex, goal, h, hopper: Hopper, sqrt_w, table, terrain, fallback, accept,
             first=0):
     """`jaxhop._slip_table._deadbeat_table`: one start at a time from start `first` until
-    one ends with C2 <= `accept` (the table's starts, best first, with the polish's stops,
-    then with `fallback` the multi-start solver's starts as it runs them); the best end
-    wins. Returns
+    one ends with C2 <= `accept` (the table's starts, best first, then with `fallback` the
+    multi-start solver's starts, all with the polish's stops); the best end wins. Returns
     `(p, C2, stage)`."""
     starts = table_starts(*table, apex, goal, h, hopper, TABLE_STARTS, terrain)
     n_all = TABLE_STARTS + 3 if fallback else TABLE_STARTS
@@ -133,7 +133,8 @@ def _staged(apex, goal, h, hopper: Hopper, sqrt_w, table, terrain, fallback, acc
             if guesses is None:
                 guesses = initial_guesses(apex, goal, h, hopper, terrain)
             end, c = _gauss_newton(guesses[i - TABLE_STARTS], apex, goal, h, hopper, sqrt_w,
-                                   terrain=terrain)
+                                   MULTI_ITER, POLISH_COST, terrain, POLISH_MIN_TRUST,
+                                   POLISH_STALL)
         if c < cost:
             best, cost = np.asarray(end, float), c
         i += 1
