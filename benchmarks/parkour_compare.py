@@ -79,6 +79,8 @@ def main(argv=None) -> int:
     ap.add_argument("--noise", default=",".join(NOISES))
     ap.add_argument("--models", default="bhop,slip")
     ap.add_argument("--planners", default="reactive,mppc")
+    ap.add_argument("--controllers", default="adaptive,paper",
+                    help="reactive controllers (`jaxhop.RunConfig`): adaptive, paper")
     ap.add_argument("--runs", type=int, default=16, help="reactive BHop runs per setting")
     ap.add_argument("--slip-runs", type=int, default=4, help="reactive SLIP runs per setting")
     ap.add_argument("--slip-noise", default="none", help="disturbances for SLIP runs")
@@ -149,17 +151,20 @@ def main(argv=None) -> int:
             for model in args.models.split(","):
                 noises = args.noise.split(",") if model == "bhop" else args.slip_noise.split(",")
                 runs = args.runs if model == "bhop" else args.slip_runs
-                for noise in noises:
-                    if not noise:
-                        continue
-                    t0 = time.perf_counter()
-                    r = reactive_parkour(course, model=model, noise=noise, seed=args.seed,
-                                         runs=runs, hopper=hop, templates=tm, plans=cps)
-                    r.pop("executed")
-                    r["seconds"] = time.perf_counter() - t0
-                    out["rows"].append(r)
-                    log(f"{name} reactive/{model}/{noise}: success {r['success_rate']:.2f}, "
-                        f"{r['mean_jumps']} jumps, {r['seconds']:.0f} s")
+                for controller in args.controllers.split(","):
+                    for noise in noises:
+                        if not noise:
+                            continue
+                        t0 = time.perf_counter()
+                        r = reactive_parkour(course, model=model, noise=noise, seed=args.seed,
+                                             runs=runs, hopper=hop, templates=tm, plans=cps,
+                                             controller=controller)
+                        r.pop("executed")
+                        r["seconds"] = time.perf_counter() - t0
+                        out["rows"].append(r)
+                        log(f"{name} reactive/{model}/{controller}/{noise}: success "
+                            f"{r['success_rate']:.2f}, {r['mean_jumps']} jumps, "
+                            f"{r['seconds']:.0f} s")
         if "mppc" in planners:
             for noise in args.noise.split(","):
                 seeds = [0] if noise == "none" else range(args.mppc_seeds)
@@ -308,7 +313,8 @@ def markdown(out: dict) -> str:
              "decision / replan ms (median) | failures |",
              "|---|---|---|---|---|---|---|---|---|"]
     for r in out["rows"]:
-        who = r["planner"] + ("" if r["planner"] == "mppc" else f" {r['model']}")
+        who = r["planner"] + ("" if r["planner"] == "mppc" else
+                              f" {r['model']} {r.get('controller', 'paper')}")
         lines.append(f"| {r['course']} | {who} | {r['noise']} | {r['runs']} | "
                      f"{r['success_rate']:.2f} | {_fmt(r['mean_jumps'], '.1f')} | "
                      f"{_fmt(r['mean_flight_time'])} | {_fmt(r['replan_ms']['median'], '.3f')} | "

@@ -97,7 +97,10 @@ def _match_positions(apex, tables: PlanTables, hopper: Hopper, recover: bool = F
 
     With `recover`, an apex in no deployed domain takes the nearest deployed domain among
     `recovery_candidates` (`domain_distance`, ties to the earlier deployed) if it lies
-    within `RECOVERY_DISTANCE`; the candidates are then followed by those.
+    within `RECOVERY_DISTANCE`; the candidates are then followed by those. Where neither
+    holds and the tables carry `hold_pos`, the undeployed situated domains containing the
+    apex take part in hold order (a holding stride, also reported as recovered; for them
+    `best_inst` names the undeployed instantiated policy).
     """
     ids, inside = candidate_situated(apex, tables.table, tables.templates, tables.terrain,
                                      hopper)
@@ -112,6 +115,13 @@ def _match_positions(apex, tables: PlanTables, hopper: Hopper, recover: bool = F
     pick = jnp.argmin(jnp.where(d == near, best, _NO_MATCH))
     recovered = jnp.all(pos == _NO_MATCH) & (near <= RECOVERY_DISTANCE)
     rec_pos = jnp.where(recovered & (jnp.arange(rec.shape[0]) == pick), best, _NO_MATCH)
+    if tables.hold_pos is not None:
+        # Holding: no deployed domain holds the apex or lies near it (a snapshot took the
+        # route away); the undeployed situated domains containing it, in hold order.
+        hold = jnp.all(pos == _NO_MATCH) & ~recovered
+        hold_pos = jnp.where(hold & inside, tables.hold_pos[ids], _NO_MATCH)
+        recovered = recovered | (hold & jnp.any(hold_pos < _NO_MATCH))
+        pos = jnp.minimum(pos, hold_pos)
     return jnp.concatenate([ids, rec]), jnp.concatenate([pos, rec_pos]), recovered
 
 

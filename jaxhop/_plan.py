@@ -46,6 +46,11 @@ class PlanTables(eqx.Module):
     goals: jnp.ndarray
     #: The SLIP deadbeat's start table (`jaxhop._slip_table`); `None`: multi-start solves.
     slip: object = None
+    #: Holding strides of the adaptive controller (`jaxhop.parkour`, `hold_tables`): per
+    #: situated policy with no deployed instantiated policy, the rank of its best
+    #: undeployed one (`best_inst` then names that one), `iinfo(int32).max` elsewhere.
+    #: `None`: no holding.
+    hold_pos: jnp.ndarray | None = None
 
 
 @dataclasses.dataclass

@@ -129,8 +129,34 @@ def identical_plans(a: CoursePlan, b: CoursePlan) -> bool:
 # --- padding: one compiled stride for every environment ------------------------------
 
 
+def hold_tables(plan) -> tuple[np.ndarray, np.ndarray]:
+    """Holding strides (`docs/parkour_reactive.md`, "Holding"): `(hold_pos, best_inst)`.
+
+    A situated policy none of whose instantiated policies is deployed (a snapshot left its
+    part of the course without a route to the goal) still has safe strides: each of its
+    instantiated policies has a collision-free goal in another situated domain on the
+    current map. Per such situated policy, the best of them by robustness, then safety
+    (eq 34), then id; `hold_pos` is its rank among all of them (`iinfo(int32).max` for
+    deployed situated policies and those without instantiated policies), `best_inst` the
+    plan's, with that policy where none is deployed.
+    """
+    big = np.iinfo(np.int32).max
+    best_pos, best_inst = plan.best_per_situated()
+    cand = np.nonzero(best_pos[plan.situated] == big)[0]
+    rank = np.lexsort((cand, -plan.safety[cand], -plan.robustness[cand]))
+    cand = cand[rank]
+    sit = plan.situated[cand]
+    _, first = np.unique(sit, return_index=True)  # the best per situated policy
+    hold_pos = np.full(best_pos.shape, big, np.int64)
+    hold_pos[sit[first]] = first
+    best_inst = best_inst.copy()
+    best_inst[sit[first]] = cand[first]
+    return hold_pos, best_inst
+
+
 def _pad_tables(cp: CoursePlan, n_blocks: int, n_seg: int, n_inst: int) -> PlanTables:
     tb = cp.plan.tables()
+    hold_pos, best_inst = hold_tables(cp.plan)
     t = tb.table
     nb, ns = t.block_first.shape[0], t.seg_block.shape[0]
     end = t.block_left[-1] * 0 + cp.plan.terrain.ends[-1]
@@ -141,9 +167,11 @@ def _pad_tables(cp: CoursePlan, n_blocks: int, n_seg: int, n_inst: int) -> PlanT
                           pad_to(t.block_count, n_blocks, 0),
                           pad_to(t.block_left, n_blocks, end))
     k = n_seg * cp.plan.templates.n
+    big = jnp.iinfo(jnp.int32).max
     return PlanTables(table, tb.templates, pad_terrain(tb.terrain, n_blocks),
-                      pad_to(tb.best_pos, k, jnp.iinfo(jnp.int32).max),
-                      pad_to(tb.best_inst, k, 0), pad_to(tb.goals, n_inst, 0.0))
+                      pad_to(tb.best_pos, k, big), pad_to(jnp.asarray(best_inst), k, 0),
+                      pad_to(tb.goals, n_inst, 0.0),
+                      hold_pos=pad_to(jnp.asarray(hold_pos), k, big))
 
 
 def _forbidden(m: CourseMap, n: int) -> jnp.ndarray:
