@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import math
+from types import SimpleNamespace
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -19,7 +20,7 @@ _FIELDS = ("v_lo", "v_hi", "e_lo", "e_hi", "dy_lo", "dy_hi", "th_lo", "th_hi", "
 
 @dataclasses.dataclass(frozen=True)
 class SlipAdjust:
-    """SLIP adjustments of BHop templates (section VII-A, eqs 35-37).
+    """SLIP adjustments of BHop templates (section VII-A, eqs 35-37), at any hopper size.
 
     Why and how they were refitted: `docs/decisions.md`, "SLIP on BHop plans".
 
@@ -30,15 +31,27 @@ class SlipAdjust:
     `[0.7, 1.5]` m, which no template range ever meets, so the defaults are refitted to
     SLIP strides (docs/decisions.md, "SLIP on BHop plans"; `docs/slip_shift_fit.py`).
 
+    The constants are in the units of `REFERENCE_HOPPER` (80 kg, 9.81 m/s^2, 1 m): metres
+    and m/s of that hopper. `rho0` and `g` name the hopper the adjustments apply to
+    (`for_hopper`); by Froude similarity its strides are the reference hopper's with
+    lengths times `L = rho0 / 1 m` and speeds times `V = sqrt(g rho0 / (9.81 m/s^2 1 m))`,
+    so `h(v) = L h_ref(v / V)` and `Y = L Y_ref(ydot / V)`. The mass does not enter (with
+    the controls `kc rho0 / (m g)` and `kd / kc` bounded as dimensionless numbers, a
+    stride does not depend on it). For the reference hopper `L = V = 1.0` exactly and every
+    value is bit for bit the unscaled formula's.
+
     Attributes:
         theta_avg: average touchdown angle at full speed (rad): the foot lands
-            `Y = ydot sin(theta_avg) / v_max` ahead of where the BHop foot would (eq 37),
-            which shifts every domain's `y` range by `-Y` (eq 36).
-        v_max: `|ydot_max|` of eq 37, the largest template speed (m/s).
-        cm, ca, cb, co, cs: the constants of `h`.
+            `Y = L ydot sin(theta_avg) / (V v_max)` ahead of where the BHop foot would
+            (eq 37; `ydot sin(theta_avg) / v_max` for the reference hopper), which shifts
+            every domain's `y` range by `-Y` (eq 36).
+        v_max: `|ydot_max|` of eq 37, the largest template speed (reference m/s).
+        cm, ca, cb, co, cs: the constants of `h` (reference m and m/s).
         reversal: also forbid a shift past the foot for strides that reverse direction
             (forward to backward: `dy <= 0`; backward to forward: `dy >= 0`), which no
             SLIP stance can do (`slip_shift_limits`; docs/decisions.md, "Reversal rule").
+        rho0, g: leg length (m) and gravity (m/s^2) of the hopper the adjustments are
+            scaled to (default: the reference hopper's).
     """
 
     theta_avg: float = 0.2
@@ -49,20 +62,56 @@ class SlipAdjust:
     co: float = -1.149
     cs: float = 0.2252
     reversal: bool = True
+    rho0: float = REFERENCE_HOPPER[2]
+    g: float = REFERENCE_HOPPER[1]
 
     @classmethod
     def printed(cls, **kwargs) -> SlipAdjust:
         """The constants as printed in the paper (`Cm = 1.11, Ca = 1, Cb = 10, Co = -0.1`)."""
         return cls(cm=1.11, ca=1.0, cb=10.0, co=-0.1, cs=1.1, reversal=False, **kwargs)
 
+    def for_hopper(self, hopper) -> SlipAdjust:
+        """The same adjustments scaled to `hopper` (anything with `g`, `rho0`; `m` unused).
+
+        The constants stay in reference units; only the scale changes, so scaling twice
+        gives the scaling to the last hopper.
+        """
+        return dataclasses.replace(self, rho0=float(hopper.rho0), g=float(hopper.g))
+
+    def scales(self) -> tuple[float, float]:
+        """`(L, V)`: the length and speed factors against `REFERENCE_HOPPER`, exactly
+        `(1.0, 1.0)` for it (`froude_scales`)."""
+        f = froude_scales(SimpleNamespace(m=REFERENCE_HOPPER[0], g=self.g, rho0=self.rho0))
+        return f["length"], f["velocity"]
+
+    def dimensionless(self) -> dict:
+        """The constants in Froude units of the reference hopper: lengths over `rho0`,
+        speeds over `sqrt(g rho0)`, `c` times `sqrt(g rho0)`; the same at every size."""
+        _, g0, l0 = REFERENCE_HOPPER
+        speed = math.sqrt(g0 * l0)
+        return {"theta_avg": self.theta_avg, "v_max": self.v_max / speed,
+                "cm": self.cm / l0, "ca": self.ca * speed, "cb": self.cb * speed,
+                "co": self.co / speed, "cs": self.cs}
+
+    def to_dict(self) -> dict:
+        """The fields (part of a plan's cache key); `rho0` and `g` only when they are not
+        the reference hopper's, so unscaled adjustments keep the key they always had."""
+        out = dataclasses.asdict(self)
+        if (self.rho0, self.g) == (REFERENCE_HOPPER[2], REFERENCE_HOPPER[1]):
+            del out["rho0"], out["g"]
+        return out
+
     def lead(self, ydot):
         """`Y` of eq 37: how far ahead of the BHop foot the SLIP foot lands (m)."""
-        return ydot * math.sin(self.theta_avg) / abs(self.v_max)
+        length, speed = self.scales()
+        return length * (ydot * math.sin(self.theta_avg) / (speed * abs(self.v_max)))
 
     def h(self, v):
-        """`h(v)` of eq 35 (m)."""
-        c = jnp.where(v < self.co, self.ca, self.cb)
-        return self.cm * (jnp.arctan(c * (v + self.co)) / jnp.pi - self.cs)
+        """`h(v)` of eq 35 (m), `v` in m/s of the hopper."""
+        length, speed = self.scales()
+        u = v / speed
+        c = jnp.where(u < self.co, self.ca, self.cb)
+        return length * (self.cm * (jnp.arctan(c * (u + self.co)) / jnp.pi - self.cs))
 
 
 class Templates(eqx.Module):
@@ -101,11 +150,21 @@ class Templates(eqx.Module):
         return Templates(*(getattr(self, f)[i] for f in _FIELDS), seg_length=self.seg_length,
                          slip=self.slip)
 
-    def for_slip(self, adjust: SlipAdjust | None = None) -> Templates:
-        """The same templates with the SLIP adjustments of section VII-A (eqs 35-37)."""
+    def for_slip(self, adjust: SlipAdjust | None = None, hopper=None) -> Templates:
+        """The same templates with the SLIP adjustments of section VII-A (eqs 35-37).
+
+        Arguments:
+            adjust: the adjustments (default: `SlipAdjust()` with `v_max` the largest
+                template speed, in reference units: divided by `hopper`'s speed factor).
+            hopper: scale them to this hopper (`SlipAdjust.for_hopper`); give it for
+                templates of any hopper but the reference one (e.g. `scaled_templates`).
+        """
         if adjust is None:
+            speed = 1.0 if hopper is None else SlipAdjust().for_hopper(hopper).scales()[1]
             adjust = SlipAdjust(v_max=float(np.max(np.abs(np.asarray(
-                jnp.concatenate([self.v_lo, self.v_hi]))))))
+                jnp.concatenate([self.v_lo, self.v_hi]))))) / speed)
+        if hopper is not None:
+            adjust = adjust.for_hopper(hopper)
         return Templates(*(getattr(self, f) for f in _FIELDS), seg_length=self.seg_length,
                          slip=adjust)
 
@@ -116,7 +175,7 @@ class Templates(eqx.Module):
         out = {"seg_length": self.seg_length,
                "templates": [dict(zip(_FIELDS, map(float, r))) for r in self.as_array()]}
         if self.slip is not None:
-            out["slip"] = dataclasses.asdict(self.slip)
+            out["slip"] = self.slip.to_dict()
         return out
 
 
@@ -193,9 +252,10 @@ def scaled_templates(hopper, extra_energy=(), base: Templates | None = None) -> 
 
     Energy and velocity ranges, the horizontal-shift limits `dy` and the segment length are
     the reference values (written for `REFERENCE_HOPPER`, 80 kg, 9.81 m/s^2, 1 m) times the
-    ratio of the two hoppers' scales (`template_scales`); angles and `k` are unchanged. For
-    the reference hopper every factor is exactly 1.0, so the result equals
-    `paper_templates()` bit for bit.
+    ratio of the two hoppers' scales (`template_scales`); angles and `k` are unchanged.
+    SLIP adjustments of `base` are scaled to `hopper` (`SlipAdjust.for_hopper`). For the
+    reference hopper every factor is exactly 1.0, so the result equals the base (default
+    `paper_templates()`) bit for bit.
 
     Arguments:
         hopper: anything with `m`, `g`, `rho0`.
@@ -229,4 +289,5 @@ def scaled_templates(hopper, extra_energy=(), base: Templates | None = None) -> 
     arr[:, 0:2] *= f["velocity"]
     arr[:, 2:4] *= f["energy"]
     arr[:, 4:6] *= f["length"]
-    return make_templates(arr, base.seg_length * f["length"])
+    out = make_templates(arr, base.seg_length * f["length"])
+    return out if base.slip is None else out.for_slip(base.slip, hopper)
