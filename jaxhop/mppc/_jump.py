@@ -195,10 +195,10 @@ def _raise_wind(robot, x0, z0, xp, zp, xh, zh, obstacles, escape, tan, wind):
     n = xh.shape[0] - obstacles[0].shape[0]
 
     def heights(T):
-        return _face_heights_wind(robot, x0, z0, xp, zp, xh[:n], T, wind)[1]
+        cross, z_at = _face_heights_wind(robot, x0, z0, xp, zp, xh[:n], T, wind)
+        return z_at, cross
 
-    z_at, slope = jax.jvp(heights, (tan,), (jnp.ones_like(tan),))
-    cross = _face_heights_wind(robot, x0, z0, xp, zp, xh[:n], tan, wind)[0]
+    z_at, slope, cross = jax.jvp(heights, (tan,), (jnp.ones_like(tan),), has_aux=True)
     gap = zh[:n] + Z_SLACK - z_at
     step = jnp.where(slope > 0, gap / jnp.where(slope > 0, slope, 1.0), jnp.inf)
     new = jnp.maximum(tan, jnp.max(jnp.where(cross & (gap > 0), tan + step, tan)))

@@ -29,13 +29,15 @@ K = 9  # offsets per point and sweep
 N_SWEEPS = 3
 
 
-def legal_interval(robot, env, margin_h: float, room: float, x: float, z: float,
-                   half: float) -> tuple[float, float]:
-    """The legal stretch around landing point `x` (on the surface `z`), within `half`.
+def legal_end(robot, env, margin_h: float, room: float, x: float, z: float,
+              half: float) -> float:
+    """The end of the legal stretch after landing point `x` (on the surface `z`), at most
+    `half` ahead (and not before `x`).
 
     Forbidden open intervals: `(e - Mh - room, e + Mh + room)` around every block edge
     `e`, restricted areas widened by `room`, and the landing points that put the knee
-    (`knee_from_foot`) inside a block taller than the knee (block widened by `room`).
+    (`knee_from_foot`) inside a block taller than the knee (block widened by `room`);
+    a block edge also ends the stretch (another surface).
     """
     m = margin_h + room
     edges = np.concatenate([env.front, env.back])
@@ -43,13 +45,9 @@ def legal_interval(robot, env, margin_h: float, room: float, x: float, z: float,
     tall = env.height > z + kz
     lo_ends = np.concatenate([edges - m, env.restricted_lo - room,
                               env.front[tall] - room - kx, edges])
-    hi_ends = np.concatenate([edges + m, env.restricted_hi + room,
-                              env.back[tall] + room - kx, edges])
-    left = hi_ends[hi_ends <= x + 1e-12]
     right = lo_ends[lo_ends >= x - 1e-12]
-    lo = max(x - half, float(left.max())) if left.size else x - half
     hi = min(x + half, float(right.min())) if right.size else x + half
-    return min(lo, x), max(hi, x)
+    return max(hi, x)
 
 
 def _pair(robot, obs, margin_v, wind, room):
@@ -112,7 +110,7 @@ def polish_path(robot, course, data, xs, zs, obs, extra: dict, grid: float, size
     env = data.env
     lo, hi = np.array(xs, float), np.array(xs, float)  # forward only: lo is the grid point
     for k in range(1, n):
-        hi[k] = legal_interval(robot, env, course.margin_h, data.room, xs[k], zs[k], grid)[1]
+        hi[k] = legal_end(robot, env, course.margin_h, data.room, xs[k], zs[k], grid)
     pad = size - len(xs)
     far = xs[-1] + 10 + np.arange(pad)
     xp = np.concatenate([xs, far])

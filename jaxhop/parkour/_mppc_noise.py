@@ -18,15 +18,14 @@ restricted areas and blocks for the landing and sensing error seen so far.
 
 Each executed jump is checked: the independent checker (`check_jump`) for the flight
 from the true takeoff point in the true wind (foot and knee clearance, collisions), and
-the disturbed
-landing point for the restricted areas (`restricted`), the edge margin (`margin`) and a
-landing on a higher surface than planned (`collision`: the foot meets a block top or
-side before its planned touchdown), with the checker's tolerance (`TOL`, 1e-6 m). A
-landing on a lower surface is a fall: the robot
-continues from there. Where a replayed snapshot moves a block under the standing robot
-(the snapshots follow the original planner's trajectory, not this one), the robot stands
-on the new surface (a note is recorded). The run is finished when the robot stands
-within `0.05 rt` of the goal (the reactive planner's goal tolerance in `y`).
+the disturbed landing point for the restricted areas (`restricted`), the edge margin
+(`margin`) and a landing on a higher surface than planned (`collision`: the foot meets a
+block top or side before its planned touchdown), with the checker's tolerance (`TOL`,
+1e-6 m). A landing on a lower surface is a fall: the robot continues from there. Where
+a replayed snapshot moves a block under the standing robot (the snapshots follow the
+original planner's trajectory, not this one), the robot stands on the new surface (a
+note is recorded). The run is finished when the robot stands within `0.05 rt` of the
+goal (the reactive planner's goal tolerance in `y`).
 """
 
 from __future__ import annotations
