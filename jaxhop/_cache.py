@@ -49,7 +49,7 @@ def plan_key(terrain: Terrain, goal, templates: Templates, hopper: Hopper,
 def save_plan(plan: Plan, path: str, key: str) -> None:
     """Write `plan` to `path` (through a temporary file, so a reader never sees half of it)."""
     p = plan.prepares.tocsr()
-    tmp = path + ".tmp"
+    tmp = f"{path}.{os.getpid()}.tmp"  # processes sharing the cache write apart
     with open(tmp, "wb") as f:
         np.savez_compressed(
             f, key=np.asarray(key), situated=plan.situated, target=plan.target,

@@ -4,5 +4,28 @@ import tempfile
 import jax
 
 jax.config.update("jax_enable_x64", True)
-# Tests never touch the user's plan cache.
-os.environ.setdefault("JAXHOP_CACHE", tempfile.mkdtemp(prefix="jaxhop-test-cache-"))
+
+
+def _test_cache() -> str:
+    """A cache directory for this test session, never the user's.
+
+    The pytest-xdist workers of one session share it (named by the run's id): the SLIP
+    table, plans and compiled programs one worker made are there for the others, and for
+    the processes and notebook kernels the tests start, which inherit the environment.
+    Concurrent writers are safe: the plan cache and the table write through temporary files
+    and replace, the table build holds a file lock, and JAX's compilation cache writes
+    atomically.
+    """
+    run = os.environ.get("PYTEST_XDIST_TESTRUNUID")
+    if run is None:
+        return tempfile.mkdtemp(prefix="jaxhop-test-cache-")
+    path = os.path.join(tempfile.gettempdir(), f"jaxhop-test-cache-{run}")
+    os.makedirs(path, exist_ok=True)
+    return path
+
+
+os.environ.setdefault("JAXHOP_CACHE", _test_cache())
+# Tests that give a process a cache of its own (to test the plan cache) still share the
+# session's compiled programs.
+os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", os.path.join(os.environ["JAXHOP_CACHE"],
+                                                                "xla"))
