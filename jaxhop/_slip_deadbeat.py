@@ -63,8 +63,7 @@ W_POS, W_VEL = 1.0, 1.0
 # Bracket solver: touchdown-angle grid of the inner problem, sign changes bisected per
 # stiffness, bisection steps per sign change, points of the outer stiffness scan.
 TH_GRID, N_ROOTS, BISECTION_STEPS, KC_SCAN = 17, 3, 24, 7
-# A leg whose radial speed at touchdown is above -GRAZE_SPEED (m/s) counts as unloaded in
-# the bracket searches (see `_search_trial`).
+# Radial touchdown speed (m/s) above -GRAZE_SPEED: an unloaded leg (`_search_trial`).
 GRAZE_SPEED = 1e-3
 # Largest Gauss-Newton step per coordinate of (th_td in rad, s = normalised kc).
 MAX_STEP = 0.2
@@ -311,21 +310,17 @@ def _initial_guesses(apex, goal, h, hopper, tol, terrain=None, wind=None):
     def bisect(s):
         kc = kc_lo + s * (kc_hi - kc_lo)
 
-        # The last pass strides from the final midpoint only for its C2: one stride in the
-        # loop body serves the bisection and the cost (one copy of the solves to compile).
+        # A last pass prices the final midpoint: one stride site serves both (one to compile).
         def body(i, b):
             lo, hi, _ = b
             mid = 0.5 * (lo + hi)
             nxt, code, _, speed = _trial(apex, goal, h, mid, kc, hopper, tol, terrain, wind)
-            move = i < START_BISECTIONS
-            fast = speed > goal[2]
+            move, fast = i < START_BISECTIONS, speed > goal[2]
             c = jnp.sum(weights * jnp.where(code == OK, nxt - goal, 1e3) ** 2)
-            return (jnp.where(move & fast, mid, lo), jnp.where(move & ~fast, mid, hi),
-                    c)
+            return jnp.where(move & fast, mid, lo), jnp.where(move & ~fast, mid, hi), c
 
-        lo, hi, c = jax.lax.fori_loop(0, START_BISECTIONS + 1, body,
-                                      (jnp.asarray(TH_LO, float), jnp.asarray(TH_HI, float),
-                                       jnp.asarray(jnp.inf)))
+        init = (jnp.asarray(TH_LO, float), jnp.asarray(TH_HI, float), jnp.asarray(jnp.inf))
+        lo, hi, c = jax.lax.fori_loop(0, START_BISECTIONS + 1, body, init)
         return 0.5 * (lo + hi), c
 
     th_inner, c_inner = jax.vmap(bisect)(ss[:, 0])
@@ -346,10 +341,8 @@ def _deadbeat_gradient(apex, goal, h, hopper, tol, max_iter=16, cost_tol=1e-16,
     noise floor), or once an accepted step lowers C2 by less than the fraction `stall` of
     it (a target out of reach: the polish has found its valley's floor).
 
-    `starts`: `(n, 2)` starting points (default `_initial_guesses`).
-
-    Returns:
-        `(th_td, kc, c2)` of the best end point.
+    `starts`: `(n, 2)` starting points (default `_initial_guesses`). Returns `(th_td, kc,
+    c2)` of the best end point.
     """
     tol = Tolerances(tol.rtol, tol.atol, diffrax.ForwardMode())
     sqrt_w = jnp.sqrt(jnp.array([W_POS, W_POS, W_VEL]))
@@ -378,9 +371,7 @@ def _deadbeat_gradient(apex, goal, h, hopper, tol, max_iter=16, cost_tol=1e-16,
         best, r_b, jac_b, cost_b, trial, trust, state, i, _ = carry
         jac, r = jax.jacfwd(residual, has_aux=True)(trial)
         cost = jnp.sum(r**2)
-        # Step -1 evaluates the start itself (always kept), so the loop body is the one
-        # place that differentiates a stride: a second copy of the solves would double
-        # the time to trace and compile them.
+        # Step -1 prices the start (kept; trust 0.5 -> 1): one differentiated stride site.
         first = i < 0
         better = (cost < cost_b) | first
         flat = better & ~first & (cost_b - cost < stall * cost_b)
@@ -392,7 +383,6 @@ def _deadbeat_gradient(apex, goal, h, hopper, tol, max_iter=16, cost_tol=1e-16,
         return best, r_b, jac_b, cost_b, trial, trust, state, i + 1, flat
 
     def solve(p0):
-        # Step -1 (the start) doubles the trust to a full step, as at an accepted step.
         carry = (p0, jnp.zeros(3), jnp.zeros((3, 2)), jnp.asarray(jnp.inf), p0,
                  jnp.array(0.5), opt.init(p0), -1, jnp.asarray(False))
         best, _, _, cost, *_ = jax.lax.while_loop(cond, body, carry)
