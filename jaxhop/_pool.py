@@ -59,6 +59,8 @@ def pool_runs(runs, apex0, key, consts, config: RunConfig, on_done, lanes=POOL_L
     One host thread per device, all taking runs from one queue: the devices step (and, the
     first time, compile) concurrently, and none waits for another.
     """
+    if not runs:
+        return
     # Placeholder leaves for a lane whose run starts in the next step (`fresh`).
     blank, treedef = jax.tree_util.tree_flatten(jax.device_get(run_init(jnp.zeros(3), config)))
     queue, lock, stop = deque(runs), threading.Lock(), threading.Event()
@@ -95,12 +97,11 @@ def pool_runs(runs, apex0, key, consts, config: RunConfig, on_done, lanes=POOL_L
                     on_done(run, fields)
 
     devices = jax.local_devices()
-    # Trace the step once here: the device threads then find its jaxpr in jit's cache and
-    # only lower and compile (or load) it for their device, instead of each tracing it
-    # (about 20 s of Python for a SLIP decision).
-    carry0 = jax.tree_util.tree_unflatten(treedef, [np.stack([x] * lanes) for x in blank])
-    _pool_step_jit.trace(carry0, np.ones(lanes, bool), apex0[np.zeros(lanes, int)],
-                         np.zeros(lanes, int), key, *consts)
+    # Trace the step once here, on lanes as the workers build them: the device threads then
+    # find its jaxpr in jit's cache and only lower and compile (or load) it for their
+    # device, instead of each tracing it (about 20 s of Python for a SLIP decision).
+    carry0, index0, fresh0 = _lane_batch([(runs[0], blank, True)] * lanes, treedef, devices[0])
+    _pool_step_jit.trace(carry0, fresh0, apex0[index0], index0, key, *consts)
     with ThreadPoolExecutor(len(devices)) as ex:
         futures = [ex.submit(worker, dev) for dev in devices]
         try:
