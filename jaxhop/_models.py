@@ -199,37 +199,30 @@ def decide_bhop(apex, tables: PlanTables, hopper: Hopper, wind=None, heights=Non
 SLIP_CANDIDATES = 2
 SLIP_ACCEPT = (0.05, 0.05, 0.05)
 # A decision's deadbeat tries the table's further starts where the best one ends with a C2
-# above this (an apex error of 1 cm; `jaxhop._slip_table._deadbeat_table`).
+# above this (an apex error of 1 cm; `jaxhop._slip_table._deadbeat_table`). It runs the
+# multi-start solver only where the table has no start: where every table start misses, so
+# does the multi-start solver on nearly every target (docs/slip.md, "Decisions").
 SLIP_STAGE_C2 = 1e-4
-# Candidates that try the multi-start solver where every table start missed: on the
-# reference terrain's sweep it turns 2.3 % of the first candidates' misses into accepted
-# strides and 0.1 % of the second's, at several times a table start's cost (docs/slip.md).
-SLIP_FALLBACKS = 1
 
 
 def _first_accepted(one, goals, h, valid):
-    """`one(goal, h, fallback) -> (u, miss)` on the valid candidates in order, each only
-    where every earlier try missed (`miss > 1`): first from the table's starts, then, where
-    all of those missed, the first `SLIP_FALLBACKS` with the multi-start solver
-    (`fallback`), keeping the smaller miss per candidate. One while loop: under `vmap` a
-    try costs nothing in a batch whose lanes all accepted an earlier one. Candidates not
-    tried keep `miss = inf`."""
+    """`one(goal, h) -> (u, miss)` on the valid candidates in order, each only where every
+    earlier one missed (`miss > 1`). One while loop: under `vmap` a candidate costs nothing
+    in a batch whose lanes all accepted an earlier one. Candidates not tried keep
+    `miss = inf`."""
     n = goals.shape[0]
     order = jnp.argsort(~valid, stable=True)
     n_valid = jnp.sum(valid)
 
     def more(carry):
         i, _, misses = carry
-        return (i < n_valid + jnp.minimum(n_valid, SLIP_FALLBACKS)) & jnp.all(misses > 1.0)
+        return (i < n_valid) & jnp.all(misses > 1.0)
 
     def next_one(carry):
         i, us, misses = carry
-        fallback = i >= n_valid
-        c = order[jnp.where(fallback, i - n_valid, i)]
-        u, m = one(goals[c], h[c], fallback)
-        better = m < misses[c]
-        return (i + 1, us.at[c].set(jnp.where(better, u, us[c])),
-                misses.at[c].set(jnp.minimum(m, misses[c])))
+        c = order[i]
+        u, m = one(goals[c], h[c])
+        return i + 1, us.at[c].set(u), misses.at[c].set(m)
 
     carry = (jnp.asarray(0), jnp.zeros((n, 3)), jnp.full((n,), jnp.inf))
     _, us, misses = jax.lax.while_loop(more, next_one, carry)
@@ -271,10 +264,9 @@ def decide_slip(apex, tables: PlanTables, hopper: Hopper, n_candidates: int = SL
         h = heights[tables.table.seg_block[sit // tables.templates.n]]
         terrain = terrain.with_heights(heights)
 
-    def one(goal, h_, fallback=False):
+    def one(goal, h_):
         u, ok = deadbeat_slip(apex, goal, h_, hopper, terrain=terrain, wind=wind,
-                              table=tables.slip, fallback=fallback, accept=SLIP_STAGE_C2,
-                              multi_only=fallback)
+                              table=tables.slip, fallback=False, accept=SLIP_STAGE_C2)
         pred, code, _ = slip_stride(apex, u, terrain, hopper, 0.0 if wind is None else wind,
                                     SEARCH_TOL)
         miss = jnp.max(jnp.abs(pred - goal) / jnp.asarray(SLIP_ACCEPT))

@@ -16,14 +16,13 @@ For a target apex `goal` over a flat foothold at `h`, find `u = (th_td, kc, kd)`
 Two solvers:
 
 - `"bracket"`: nested bracketing searches. Inner: a 17-point grid over `th_td`, optimistix
-  bisection (explicit `flip`) in up to three of the speed error's sign changes, and the
-  root whose stride has the least C2. Outer: golden section over a normalised
-  `s in [0, 1]` next to the best point of a 7-point scan.
-- `"gradient"`: the two problems solved jointly over `(th_td, kc)` (`kd` still from eq 12)
-  by damped Gauss-Newton steps applied with optax, the Jacobian from forward-mode
-  differentiation through diffrax (`ForwardMode`), started from three points of a coarse
-  grid. It is the default: 10-30x faster per target than `"bracket"` and more accurate;
-  L-BFGS on C2 stalls in its curved valley in `(th_td, kc)` (docs/slip.md).
+  bisection (explicit `flip`) in up to three of the speed error's sign changes, the root
+  with the least C2. Outer: golden section over a normalised `s in [0, 1]` next to the
+  best point of a 7-point scan.
+- `"gradient"` (the default): both problems jointly over `(th_td, kc)` (`kd` from eq 12)
+  by damped Gauss-Newton steps applied with optax, the Jacobian by forward-mode
+  differentiation through diffrax, from three points of a coarse grid: 10-30x faster per
+  target than `"bracket"` and more accurate (docs/slip.md).
 
 One sample per call; vmap for batches.
 """
@@ -60,8 +59,8 @@ SEARCH_TOL = Tolerances(rtol=1e-8, atol=1e-8)
 _FAIL_SPEED = 1e3
 # Weights of C2 (eq 16): position (m) and velocity (m/s) errors weigh the same.
 W_POS, W_VEL = 1.0, 1.0
-# Bracket solver: touchdown-angle grid of the inner problem, sign changes bisected per
-# stiffness, bisection steps per sign change, points of the outer stiffness scan.
+# Bracket solver: inner touchdown-angle grid, sign changes bisected per stiffness, steps per
+# sign change, points of the outer stiffness scan.
 TH_GRID, N_ROOTS, BISECTION_STEPS, KC_SCAN = 17, 3, 24, 7
 # Radial touchdown speed (m/s) above -GRAZE_SPEED: an unloaded leg (`_search_trial`).
 GRAZE_SPEED = 1e-3
@@ -245,9 +244,8 @@ def _inner_th(apex, goal, h, kc, hopper, tol):
 def golden_minimise(fn, lower, upper, rtol=0.0, atol=1e-8, max_steps=80):
     """Golden-section minimum of `fn` on `[lower, upper]`.
 
-    optimistix 0.1.0's `GoldenSearch` places its first interior point at
-    `(upper - lower) / (phi + 1)`, forgetting `lower`; it is only right on `[0, 1]`-like
-    brackets that start at 0. So the search runs over `s in [0, 1]` and maps back.
+    optimistix 0.1.0's `GoldenSearch` puts its first point at `(upper - lower) / (phi + 1)`,
+    forgetting `lower`: the search runs over `s in [0, 1]` and maps back.
     """
     def scaled(s, args):
         return fn(lower + s * (upper - lower))
@@ -302,9 +300,8 @@ def _initial_guesses(apex, goal, h, hopper, tol, terrain=None, wind=None):
     grid = jnp.stack([ths[0, best], ss[:, 0]], axis=1)
     if START_BISECTIONS == 0:
         return grid
-    # The stride's speed is very steep in th_td at low speeds (the valley of C2 can be far
-    # narrower than the grid step): a short bisection of the inner problem (eqs 13-14) per
-    # row gives a second candidate start; each row keeps the better of the two.
+    # The speed is very steep in th_td at low speeds (C2's valley can be far narrower than
+    # the grid step): a short inner bisection (eqs 13-14) per row gives a second start.
     kc_lo, kc_hi = kc_limits(hopper)
 
     def bisect(s):
@@ -331,15 +328,13 @@ def _initial_guesses(apex, goal, h, hopper, tol, terrain=None, wind=None):
 
 def _deadbeat_gradient(apex, goal, h, hopper, tol, max_iter=16, cost_tol=1e-16,
                        terrain=None, wind=None, starts=None, min_trust=0.0, stall=0.0):
-    """Damped Gauss-Newton on C2 over `p = (th_td, s)`; optax applies the steps.
-
-    The Jacobian of the weighted apex error comes from forward-mode differentiation through
-    diffrax (`ForwardMode`: two tangents). A trial point that does not lower C2 is rejected
-    and the step scale quartered; an accepted one doubles it (up to a full step). A start
-    stops after `max_iter` steps (may be traced), at a C2 below `cost_tol`, or once its
-    step scale falls below `min_trust` (only rejected steps shrink it: the trial strides'
-    noise floor), or once an accepted step lowers C2 by less than the fraction `stall` of
-    it (a target out of reach: the polish has found its valley's floor).
+    """Damped Gauss-Newton on C2 over `p = (th_td, s)`, the Jacobian by forward mode through
+    diffrax (two tangents); optax applies the steps. A trial that does not lower C2 is
+    rejected and quarters the step scale; an accepted one doubles it (up to 1). A start
+    stops after `max_iter` steps (may be traced), at a C2 below `cost_tol`, at a step scale
+    below `min_trust` (only rejected steps shrink it: the trial strides' noise floor), or
+    after an accepted step that gains less than the fraction `stall` of C2 (a target out
+    of reach: the valley's floor).
 
     `starts`: `(n, 2)` starting points (default `_initial_guesses`). Returns `(th_td, kc,
     c2)` of the best end point.
@@ -355,7 +350,12 @@ def _deadbeat_gradient(apex, goal, h, hopper, tol, max_iter=16, cost_tol=1e-16,
 
     def step(p, r, jac, trust, state):
         normal = jac.T @ jac + 1e-12 * jnp.trace(jac.T @ jac) * jnp.eye(2)
-        direction = jnp.linalg.solve(normal, jac.T @ r)
+        grad = jac.T @ r
+        direction = jnp.linalg.solve(normal, grad)
+        # s at a bound the gradient points out of: a step along th_td alone (a clipped 2-D
+        # step stalls there, where targets out of reach often have their best stride).
+        pinned = ((p[1] <= 0.0) & (grad[1] > 0.0)) | ((p[1] >= 1.0) & (grad[1] < 0.0))
+        direction = jnp.where(pinned, jnp.stack([grad[0] / normal[0, 0], 0.0]), direction)
         # A failed stride has a constant residual, hence a zero Jacobian and a singular
         # normal matrix: no step (the trial repeats the best point, which is rejected).
         direction = jnp.where(jnp.all(jnp.isfinite(direction)), direction, 0.0)

@@ -336,9 +336,13 @@ def _deadbeat_table(apex, goal, h, hopper, tol, table, terrain=None, wind=None,
     (1-3). Starts `first .. last - 1` (traced; default: all, the multi-start ones only with
     `fallback`) are tried in order until one ends with C2 <= `accept`; the best end wins.
     The multi-start guesses are computed only when the loop reaches them."""
-    starts, _ = table_starts(table, apex, goal, h, hopper, TABLE_STARTS, terrain, wind)
+    starts, errs = table_starts(table, apex, goal, h, hopper, TABLE_STARTS, terrain, wind)
     n_all = TABLE_STARTS + N_MULTI
-    last = jnp.where(jnp.asarray(fallback), n_all, TABLE_STARTS) if last is None else last
+    # No table start (no touchdown angle of the table lands on the foothold's block): the
+    # multi-start solver's starts, with or without `fallback`.
+    none = ~jnp.isfinite(errs[0])
+    first = jnp.where(none, jnp.maximum(first, TABLE_STARTS), first)
+    last = jnp.where(jnp.asarray(fallback) | none, n_all, TABLE_STARTS) if last is None else last
     kc_lo, kc_hi = kc_limits(hopper)
 
     def more(carry):

@@ -132,3 +132,47 @@ def test_starts_avoid_touchdowns_off_the_foothold(table):
     # A foot at y = 1.0 * t_fall + rho0 sin(th) beyond 0.3 lands on the step at 0.4.
     t_fall = np.sqrt(2 * (1.6 - np.cos(np.asarray(starts[:, 0]))) / HOP.g)
     assert np.all(t_fall + np.sin(np.asarray(starts[:, 0])) < 0.3 + 1e-9)
+
+
+@pytest.mark.parametrize("apex, goal", [
+    ([0.652257, 1.28109479, 0.99839622], [0.61809854, 1.53402949, -0.59375]),
+    ([0.4, 1.3, 0.5], [0.37872505, 1.54988505, -0.09375]),
+])
+def test_polish_reaches_the_box_minimum_on_the_stiffness_bound(table, apex, goal):
+    """Targets out of one stride's reach whose least C2 over the control box lies at the
+    stiffest spring (brute force over a 241 x 21 grid of `(th_td, s)`): the staged solve
+    without the multi-start solver ends at least as low as the grid's best point."""
+    from jaxhop._slip_deadbeat import SEARCH_TOL, _residual, kc_limits
+    from jaxhop._slip_table import _deadbeat_table
+
+    apex, goal = jnp.asarray(apex), jnp.asarray(goal)
+    p = jnp.stack(jnp.meshgrid(jnp.linspace(-0.6, 0.6, 241), jnp.linspace(0.0, 1.0, 21),
+                               indexing="ij"), -1).reshape(-1, 2)
+    r = jax.jit(jax.vmap(lambda q: _residual(q, apex, goal, 0.0, HOP, SEARCH_TOL)))(p)
+    c2 = np.sum(np.asarray(r) ** 2, axis=1)
+    assert p[np.argmin(c2), 1] == 1.0 and c2.min() > 1e-3  # on the bound, out of reach
+    th, kc, c, _ = jax.jit(lambda a, g: _deadbeat_table(a, g, 0.0, HOP, SEARCH_TOL, table,
+                                                        fallback=False, accept=1e-4))(apex, goal)
+    assert float(kc) == pytest.approx(kc_limits(HOP)[1])
+    assert float(c) <= c2.min()
+
+
+def test_no_table_start_runs_the_multi_start_solver(table):
+    """An apex from which no touchdown angle of the table lands on the foothold's block:
+    the solve runs the multi-start solver's starts without being asked to, and its controls
+    reach the goal on the twin's stride (solve_ivp) over the same map within 1 mm."""
+    from jaxhop import builtin_terrain
+    from jaxhop._slip_deadbeat import deadbeat_slip
+
+    terrain = builtin_terrain("reference")
+    apex = jnp.array([8.25, 1.5, 0.5])
+    goal = jnp.array([8.76673, 1.43491, 1.08242])
+    _, errs = table_starts(table, apex, goal, 0.35, HOP, 3, terrain)
+    assert not np.any(np.isfinite(np.asarray(errs)))
+    u, ok = jax.jit(lambda a, g: deadbeat_slip(a, g, 0.35, HOP, terrain=terrain, table=table,
+                                               fallback=False, accept=1e-4))(apex, goal)
+    assert bool(ok)
+    twin_terrain = R.Terrain.from_blocks(terrain.blocks())
+    nxt, code, _ = RS.slip_stride(np.asarray(apex), np.asarray(u), twin_terrain, R.Hopper())
+    assert code == 0
+    np.testing.assert_allclose(nxt, goal, atol=1e-3)

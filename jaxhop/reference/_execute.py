@@ -33,7 +33,6 @@ _BIG = np.iinfo(np.int32).max
 SLIP_CANDIDATES = 2
 SLIP_ACCEPT = np.array([0.05, 0.05, 0.05])
 SLIP_STAGE_C2 = 1e-4  # jaxhop._models.SLIP_STAGE_C2
-SLIP_FALLBACKS = 1  # jaxhop._models.SLIP_FALLBACKS
 
 
 class Controller:
@@ -132,18 +131,13 @@ class Controller:
             us, misses = map(list, zip(*(one(c) for c in range(len(order)))))
         else:
             # `jaxhop._models._first_accepted`: the candidates in order from the table's
-            # starts until one is accepted, then the first SLIP_FALLBACKS with the
-            # multi-start solver.
+            # starts until one is accepted.
             us, misses = [np.zeros(3)] * len(order), [np.inf] * len(order)
-            tries = [(c, False) for c in range(len(order))]
-            tries += [(c, True) for c in range(min(len(order), SLIP_FALLBACKS))]
-            for c, multi in tries:
-                if min(misses) <= 1.0:
+            for c in range(len(order)):
+                us[c], misses[c] = one(c, table=self.slip_table, fallback=False,
+                                       accept=SLIP_STAGE_C2)
+                if misses[c] <= 1.0:
                     break
-                u, m = one(c, table=self.slip_table, fallback=multi, accept=SLIP_STAGE_C2,
-                           multi_only=multi)
-                if m < misses[c]:
-                    us[c], misses[c] = u, m
         misses = np.asarray(misses)
         good = misses <= 1.0
         pick = int(np.argmax(good)) if good.any() else int(np.argmin(misses))

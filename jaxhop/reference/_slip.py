@@ -14,12 +14,11 @@
   integrated compression; `(th_td, kc)` jointly from the same three starts as the JAX
   `"gradient"` solver (the best `th_td` of a 9-point grid for each of three normalised
   `kc`), the best end wins; then the same clipping and `ok` flag. Default: the JAX
-  solver's damped Gauss-Newton iteration step for step, with a forward-difference Jacobian
-  in place of forward mode, so that where a goal is out of reach (clipped controls) both
-  stop at the same point. `method="lm"`: `scipy.optimize.least_squares` (MINPACK
-  Levenberg-Marquardt, finite-difference Jacobian, iterates clipped to the bounds); it
-  reaches reachable goals as well but stops elsewhere on unreachable ones. (The bounded
-  `"trf"` method needed over 40 strides per start on curved valleys, `"lm"` about 15.)
+  solver's damped Gauss-Newton step for step, a forward-difference Jacobian in place of
+  forward mode, so both stop at the same point on goals out of reach. `method="lm"`:
+  `scipy.optimize.least_squares` (MINPACK Levenberg-Marquardt, iterates clipped to the
+  bounds), as good on reachable goals, elsewhere on the others (`"trf"` needed over 40
+  strides per start on curved valleys, `"lm"` about 15).
 
 One sample per call, plain floats; no jax import.
 """
@@ -352,15 +351,20 @@ def _gauss_newton(p0, apex, goal, h, hopper: Hopper, sqrt_w, max_iter=16, cost_t
     `(J'J + 1e-12 tr(J'J) I)^-1 J'r` times the trust scale, clipped to `MAX_STEP` per
     coordinate and the iterate to the bounds; a trial that does not lower C2 is rejected and
     quarters the trust scale, an accepted one doubles it (up to 1). A singular normal
-    matrix (a failed stride's zero Jacobian) gives no step. Stops as the JAX solver's:
+    matrix (a failed stride's zero Jacobian) gives no step; at a bound of `s` with the
+    gradient pointing out of the box the step is along `th_td` alone. Stops as the JAX solver's:
     after `max_iter` trials, at a C2 below `cost_tol`, a trust scale below `min_trust`, or
     an accepted trial that gains less than the fraction `stall` of C2."""
     def step(p, r, jac, trust):
         normal = jac.T @ jac + 1e-12 * np.trace(jac.T @ jac) * np.eye(2)
+        grad = jac.T @ r
         try:
-            direction = np.linalg.solve(normal, jac.T @ r)
+            direction = np.linalg.solve(normal, grad)
         except np.linalg.LinAlgError:  # a failed stride: zero Jacobian, no step
             direction = np.zeros(2)
+        if (p[1] <= 0.0 and grad[1] > 0.0) or (p[1] >= 1.0 and grad[1] < 0.0):  # s pinned
+            with np.errstate(divide="ignore", invalid="ignore"):
+                direction = np.array([grad[0] / normal[0, 0], 0.0])
         if not np.all(np.isfinite(direction)):
             direction = np.zeros(2)
         q = p - np.clip(trust * direction, -MAX_STEP, MAX_STEP)
@@ -420,15 +424,11 @@ def deadbeat_slip(apex, goal, h, hopper: Hopper, method: str = "gauss-newton",
         method: `"gauss-newton"` (the JAX gradient solver's iteration, finite-difference
             Jacobian; the default, used by the execution path) or `"lm"`
             (`scipy.optimize.least_squares`, MINPACK Levenberg-Marquardt).
-        terrain: plan each trial on the block the foot lands on in this map (the JAX
-            solver's `terrain`).
+        terrain: plan each trial on the block the foot lands on in this map (as JAX).
         table: `(values, grid)` of the SLIP table: the staged table-start solve (Gauss-Newton
-            only), with `fallback`, `accept` and `multi_only` as in JAX. `full`: also
-            return the stage.
+            only), `fallback`, `accept`, `multi_only` as in JAX. `full`: also the stage.
     """
-    apex = np.asarray(apex, float)
-    goal = np.asarray(goal, float)
-    h = float(h)
+    apex, goal, h = np.asarray(apex, float), np.asarray(goal, float), float(h)
     sqrt_w = np.sqrt(np.array([W_POS, W_POS, W_VEL]))
     stage = 3
     if table is None:
