@@ -201,7 +201,7 @@ SLIP_ACCEPT = (0.05, 0.05, 0.05)
 # A decision's deadbeat tries the table's further starts where the best one ends with a C2
 # above this (an apex error of 1 cm; `jaxhop._slip_table._deadbeat_table`). It runs the
 # multi-start solver only where the table has no start: where every table start misses, so
-# does the multi-start solver on nearly every target (docs/slip.md, "Decisions").
+# does the multi-start solver on nearly every target (docs/slip.md, "Deadbeat").
 SLIP_STAGE_C2 = 1e-4
 
 

@@ -398,7 +398,7 @@ def _deadbeat_gradient(apex, goal, h, hopper, tol, max_iter=16, cost_tol=1e-16,
 
 def deadbeat_slip(apex, goal, h, hopper: Hopper, method: str = "gradient",
                   tol: Tolerances = SEARCH_TOL, terrain=None, wind=None, table=None,
-                  fallback=True, accept=1e-8, multi_only=False):
+                  fallback=True, accept=1e-8):
     """Position-aware SLIP deadbeat controls taking `apex` to `goal` over a foothold at `h`.
 
     Arguments:
@@ -411,8 +411,8 @@ def deadbeat_slip(apex, goal, h, hopper: Hopper, method: str = "gradient",
         wind: `"gradient"` only: the horizontal flight acceleration the strides are
             inverted with (`None`: none); `kd` balances its work in flight (`energy_kd`).
         table: `"gradient"` only: a `jaxhop._slip_table.SlipTable` to start from
-            (`_slip_table._deadbeat_table`; the multi-start solver only where its starts
-            miss C2 <= `accept` and `fallback`, only it with `multi_only`; both traced).
+            (`_slip_table._deadbeat_table`; the multi-start solver's starts where the
+            table's miss C2 <= `accept` and `fallback`, or where the table has none).
 
     Returns:
         `(u, ok)`: `u = (th_td, kc, kd)` clipped to the control limits; `ok` when no
@@ -424,11 +424,10 @@ def deadbeat_slip(apex, goal, h, hopper: Hopper, method: str = "gradient",
             raise ValueError("the bracket solver is windless; use method='gradient'")
         th, kc = _deadbeat_bracket(apex, goal, h, hopper, tol)
     elif method == "gradient" and table is not None:
-        from ._slip_table import TABLE_STARTS, _deadbeat_table
+        from ._slip_table import _deadbeat_table
 
         th, kc, _, _ = _deadbeat_table(apex, goal, h, hopper, tol, table, terrain, wind,
-                                       fallback, accept,
-                                       jnp.where(multi_only, TABLE_STARTS, 0))
+                                       fallback, accept)
     elif method == "gradient":
         th, kc, _ = _deadbeat_gradient(apex, goal, h, hopper, tol, terrain=terrain, wind=wind)
     else:

@@ -334,7 +334,8 @@ def _deadbeat_table(apex, goal, h, hopper, tol, table, terrain=None, wind=None,
                     fallback=True, accept=ACCEPT_C2, first=0, last=None):
     """The table-start solve: `(th_td, kc, c2, stage)`, `stage` that of the last start run
     (1-3). Starts `first .. last - 1` (traced; default: all, the multi-start ones only with
-    `fallback`) are tried in order until one ends with C2 <= `accept`; the best end wins.
+    `fallback`; where the table has no start, only the multi-start ones) are tried in order
+    until one ends with C2 <= `accept`; the best end wins.
     The multi-start guesses are computed only when the loop reaches them."""
     starts, errs = table_starts(table, apex, goal, h, hopper, TABLE_STARTS, terrain, wind)
     n_all = TABLE_STARTS + N_MULTI

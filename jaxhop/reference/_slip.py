@@ -352,9 +352,9 @@ def _gauss_newton(p0, apex, goal, h, hopper: Hopper, sqrt_w, max_iter=16, cost_t
     coordinate and the iterate to the bounds; a trial that does not lower C2 is rejected and
     quarters the trust scale, an accepted one doubles it (up to 1). A singular normal
     matrix (a failed stride's zero Jacobian) gives no step; at a bound of `s` with the
-    gradient pointing out of the box the step is along `th_td` alone. Stops as the JAX solver's:
-    after `max_iter` trials, at a C2 below `cost_tol`, a trust scale below `min_trust`, or
-    an accepted trial that gains less than the fraction `stall` of C2."""
+    gradient pointing out of the box the step is along `th_td` alone. Stops as the JAX
+    solver's: after `max_iter` trials, at a C2 below `cost_tol`, a trust scale below
+    `min_trust`, or an accepted trial that gains less than the fraction `stall` of C2."""
     def step(p, r, jac, trust):
         normal = jac.T @ jac + 1e-12 * np.trace(jac.T @ jac) * np.eye(2)
         grad = jac.T @ r
@@ -414,7 +414,7 @@ def _multi_start(apex, goal, h, hopper: Hopper, sqrt_w, method="gauss-newton", t
 
 def deadbeat_slip(apex, goal, h, hopper: Hopper, method: str = "gauss-newton",
                   terrain: Terrain | None = None, table=None, fallback=True,
-                  accept=1e-8, multi_only=False, full=False):
+                  accept=1e-8, full=False):
     """Position-aware SLIP deadbeat `(u, ok)` from `apex` to `goal` over a foothold at `h`.
 
     `u = (th_td, kc, kd)` clipped to the limits; `ok` when no clipping was needed and the
@@ -426,7 +426,7 @@ def deadbeat_slip(apex, goal, h, hopper: Hopper, method: str = "gauss-newton",
             (`scipy.optimize.least_squares`, MINPACK Levenberg-Marquardt).
         terrain: plan each trial on the block the foot lands on in this map (as JAX).
         table: `(values, grid)` of the SLIP table: the staged table-start solve (Gauss-Newton
-            only), `fallback`, `accept`, `multi_only` as in JAX. `full`: also the stage.
+            only), `fallback` and `accept` as in JAX. `full`: also the stage.
     """
     apex, goal, h = np.asarray(apex, float), np.asarray(goal, float), float(h)
     sqrt_w = np.sqrt(np.array([W_POS, W_POS, W_VEL]))
@@ -434,10 +434,10 @@ def deadbeat_slip(apex, goal, h, hopper: Hopper, method: str = "gauss-newton",
     if table is None:
         best, _ = _multi_start(apex, goal, h, hopper, sqrt_w, method, terrain)
     else:
-        from ._slip_table import TABLE_STARTS, _staged
+        from ._slip_table import _staged
 
         best, _, stage = _staged(apex, goal, h, hopper, sqrt_w, table, terrain, fallback,
-                                 accept, TABLE_STARTS if multi_only else 0)
+                                 accept)
     th, s = _clip_p(best)
     kc_lo, kc_hi = kc_limits(hopper)
     kc = kc_lo + s * (kc_hi - kc_lo)

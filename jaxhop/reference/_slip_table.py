@@ -91,8 +91,8 @@ def _refine(plane, p0, target, grid):
 
 def table_starts(values, grid, apex, goal, h, hopper: Hopper, n_starts=TABLE_STARTS,
                  terrain=None):
-    """`n_starts` refined table starts `(th, s)`, best first (`jaxhop._slip_table`); `None`
-    where the table has none (no finite cell)."""
+    """`n_starts` refined table starts `(th, s)`, best first, and their interpolated errors
+    (`jaxhop._slip_table`)."""
     plane = table_slice(values, grid, apex, goal, h, hopper)
     target = np.array([(goal[0] - apex[0]) / hopper.rho0,
                        goal[2] / math.sqrt(hopper.g * hopper.rho0)])
@@ -114,23 +114,19 @@ def table_starts(values, grid, apex, goal, h, hopper: Hopper, n_starts=TABLE_STA
     cells = [(th_axis[int(np.argmin(cost[:, c]))], s_axis[c]) for c in cols]
     refined = [_refine(plane, p, target, grid) for p in cells]
     order = np.argsort([e for _, e in refined], kind="stable")
-    if not np.isfinite(refined[order[0]][1]):
-        return None
-    return [refined[i][0] for i in order]
+    return [refined[i][0] for i in order], [refined[i][1] for i in order]
 
 
-def _staged(apex, goal, h, hopper: Hopper, sqrt_w, table, terrain, fallback, accept,
-            first=0):
-    """`jaxhop._slip_table._deadbeat_table`: one start at a time from start `first` until
-    one ends with C2 <= `accept` (the table's starts, best first, then with `fallback` the
-    multi-start solver's starts, all with the polish's stops); the best end wins. Returns
-    `(p, C2, stage)`."""
-    starts = table_starts(*table, apex, goal, h, hopper, TABLE_STARTS, terrain)
-    none = starts is None  # no table start: the multi-start solver's, as with `fallback`
+def _staged(apex, goal, h, hopper: Hopper, sqrt_w, table, terrain, fallback, accept):
+    """`jaxhop._slip_table._deadbeat_table`: one start at a time until one ends with
+    C2 <= `accept` (the table's starts, best first, then with `fallback` the multi-start
+    solver's starts, all with the polish's stops; only the latter where the table has no
+    start); the best end wins. Returns `(p, C2, stage)`."""
+    starts, errs = table_starts(*table, apex, goal, h, hopper, TABLE_STARTS, terrain)
+    none = not np.isfinite(errs[0])  # no table start: only the multi-start solver's
     n_all = TABLE_STARTS + 3 if fallback or none else TABLE_STARTS
-    first = max(first, TABLE_STARTS) if none else first
-    starts = starts or [np.zeros(2)]
-    best, cost, i, guesses = np.asarray(starts[0], float), INF, first, None
+    best, cost, guesses = np.asarray(starts[0], float), INF, None
+    i = TABLE_STARTS if none else 0
     while i < n_all and cost > accept:
         if i < TABLE_STARTS:
             end, c = _gauss_newton(starts[i], apex, goal, h, hopper, sqrt_w, POLISH_ITER,
