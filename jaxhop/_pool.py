@@ -20,6 +20,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._programs import stored_program
 from ._runloop import RunConfig, World, run_init, run_live, run_result, run_step
 
 POOL_LANES = 32
@@ -38,7 +39,6 @@ def _pool_step(carry, fresh, apex0, index, key, tables, true_terrain, hopper, di
     return carry, live, final
 
 
-_pool_step_jit = jax.jit(_pool_step)
 
 
 def _lane_batch(pick, treedef, dev):
@@ -77,10 +77,9 @@ def pool_runs(runs, apex0, key, consts, config: RunConfig, on_done, lanes=POOL_L
             # Spare lanes repeat live runs (same cost; their results are discarded).
             pick = [active[j % len(active)] for j in range(lanes)]
             carry, index, fresh = _lane_batch(pick, treedef, dev)
-            carry, live, final = _pool_step_jit(carry, *jax.device_put(
-                (fresh, apex0[index], index), dev), *on_dev)
-            leaves = [np.asarray(x) for x in jax.tree_util.tree_leaves(carry)]
-            live, final = np.asarray(live), np.asarray(final)
+            out = step(*jax.tree_util.tree_leaves((carry, *jax.device_put(
+                (fresh, apex0[index], index), dev), *on_dev)))
+            *leaves, live, final = [np.asarray(x) for x in out]
             still, ended = [], []
             for slot, (run, _, _) in enumerate(active):
                 mine = [x[slot] for x in leaves]
@@ -97,11 +96,13 @@ def pool_runs(runs, apex0, key, consts, config: RunConfig, on_done, lanes=POOL_L
                     on_done(run, fields)
 
     devices = jax.local_devices()
-    # Trace the step once here, on lanes as the workers build them: the device threads then
-    # find its jaxpr in jit's cache and only lower and compile (or load) it for their
-    # device, instead of each tracing it (about 20 s of Python for a SLIP decision).
+    # The step, loaded from disk or traced once here on lanes as the workers build them
+    # (`jaxhop._programs`; tracing a SLIP decision takes about 20 s of Python): the device
+    # threads then find it in jit's cache and only compile it (or load it from JAX's cache).
     carry0, index0, fresh0 = _lane_batch([(runs[0], blank, True)] * lanes, treedef, devices[0])
-    _pool_step_jit.trace(carry0, fresh0, apex0[index0], index0, key, *consts)
+    args0 = (carry0, fresh0, apex0[index0], index0, key, *consts)
+    step = stored_program("pool-step", _pool_step, args0)
+    step.trace(*jax.tree_util.tree_leaves(args0))
     with ThreadPoolExecutor(len(devices)) as ex:
         futures = [ex.submit(worker, dev) for dev in devices]
         try:

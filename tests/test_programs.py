@@ -1,0 +1,100 @@
+"""Programs kept on disk (`jaxhop._programs`): loaded instead of traced, keyed by what they
+were traced from, and never trusted when unreadable."""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxhop import _programs
+
+
+class Spring(eqx.Module):
+    k: jnp.ndarray
+    power: int = eqx.field(static=True)
+
+
+def _program(traces):
+    def fn(x, spring, key):
+        traces.append(1)  # runs only while tracing
+        noise = jax.random.normal(key, x.shape)
+        return {"force": spring.k * x**spring.power, "noisy": x + noise}, jnp.linalg.solve(
+            jnp.eye(2) * spring.k, x[:2])
+
+    return fn
+
+
+def _expected(x, k, power, key):
+    return k * x**power, x + np.asarray(jax.random.normal(key, x.shape)), x[:2] / k
+
+
+@pytest.fixture
+def fresh(tmp_path, monkeypatch):
+    """A program folder of its own, and a way to forget this process's loaded programs."""
+    monkeypatch.setattr(_programs, "_folder", lambda: str(tmp_path / "programs"))
+    monkeypatch.setattr(_programs, "_LOADED", {})
+    return lambda: monkeypatch.setattr(_programs, "_LOADED", {})
+
+
+def _call(program, args):
+    return [np.asarray(v) for v in program(*jax.tree_util.tree_leaves(args))]
+
+
+def test_a_saved_program_is_loaded_without_tracing(fresh, tmp_path):
+    traces = []
+    x, key = jnp.linspace(0.5, 2.0, 5), jax.random.key(3)
+    args = (x, Spring(jnp.asarray(4.0), 3), key)
+    first = _call(_programs.stored_program("spring", _program(traces), args), args)
+    assert len(traces) == 1
+    assert len(list((tmp_path / "programs").iterdir())) == 1
+    fresh()  # as a new process: nothing loaded
+    again = _programs.stored_program("spring", _program(traces), args)
+    other = (2.0 * x, Spring(jnp.asarray(5.0), 3), jax.random.key(4))  # same shapes
+    out = _call(again, other)
+    assert len(traces) == 1  # loaded from disk, not traced
+    for got, want in zip([out[0], out[1], out[2]], _expected(2.0 * np.asarray(x), 5.0, 3,
+                                                             jax.random.key(4))):
+        np.testing.assert_allclose(got, want, rtol=1e-12)
+    for got, want in zip(first, _expected(np.asarray(x), 4.0, 3, key)):
+        np.testing.assert_allclose(got, want, rtol=1e-12)
+
+
+def test_static_fields_and_shapes_name_another_program(fresh, tmp_path):
+    traces = []
+    key = jax.random.key(0)
+    for args in [(jnp.ones(4), Spring(jnp.asarray(2.0), 2), key),
+                 (jnp.ones(4), Spring(jnp.asarray(2.0), 3), key),   # another static field
+                 (jnp.ones(6), Spring(jnp.asarray(2.0), 2), key)]:  # another shape
+        x = np.asarray(args[0]) * 1.5
+        run = (jnp.asarray(x), args[1], key)
+        out = _call(_programs.stored_program("spring", _program(traces), args), run)
+        np.testing.assert_allclose(out[0], 2.0 * x ** args[1].power, rtol=1e-12)
+    assert len(traces) == 3
+    assert len(list((tmp_path / "programs").iterdir())) == 3
+
+
+def test_an_unreadable_file_is_reported_and_replaced(fresh, tmp_path):
+    traces, reports = [], []
+    args = (jnp.arange(1.0, 4.0), Spring(jnp.asarray(2.0), 1), jax.random.key(1))
+    _programs.stored_program("spring", _program(traces), args)
+    (path,) = (tmp_path / "programs").iterdir()
+    path.write_bytes(b"not a program")
+    fresh()
+    out = _call(_programs.stored_program("spring", _program(traces), args,
+                                         log=reports.append), args)
+    assert len(reports) == 1 and "unreadable" in reports[0]
+    np.testing.assert_allclose(out[0], 2.0 * np.arange(1.0, 4.0), rtol=1e-12)
+    fresh()
+    _programs.stored_program("spring", _program(traces), args, log=reports.append)
+    assert len(traces) == 2 and len(reports) == 1  # the replacement loads
+
+
+def test_no_cache_folder_saves_nothing(tmp_path, monkeypatch):
+    monkeypatch.setattr(_programs, "_folder", lambda: None)
+    monkeypatch.setattr(_programs, "_LOADED", {})
+    traces = []
+    args = (jnp.ones(3), Spring(jnp.asarray(3.0), 2), jax.random.key(2))
+    out = _call(_programs.stored_program("spring", _program(traces), args), args)
+    np.testing.assert_allclose(out[0], 3.0 * np.ones(3), rtol=1e-12)
+    assert not any(tmp_path.iterdir())
