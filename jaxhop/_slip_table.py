@@ -235,13 +235,14 @@ def _bilinear(plane, p, grid: TableGrid):
     return value, jnp.stack([d_th, d_s], axis=1)
 
 
-def _refine(plane, p0, target, grid: TableGrid, steps: int = REFINE_STEPS):
+def _refine(plane, p0, target, grid: TableGrid, steps: int = REFINE_STEPS, e0=None):
     """Damped Gauss-Newton steps on the plane's bilinear interpolant in `(th, s)` from `p0`
     towards `target` (no stride is run), each clipped to `REFINE_MAX` and to the axes: a
     step that does not lower the interpolated squared error (or enters a NaN cell) is not
     taken and quarters the next one; a taken one doubles it (up to a full step). On a
-    target out of reach it ends near the interpolant's least error. Returns the end point
-    and its interpolated squared error."""
+    target out of reach it ends near the interpolant's least error. `e0`: the squared
+    error at `p0` (default: the interpolant's; a grid node next to a failed one has a value
+    of its own but a NaN interpolant). Returns the end point and its squared error."""
     lo = jnp.array([grid.th[0], grid.s[0]])
     hi = jnp.array([grid.th[1], grid.s[1]])
     limit = jnp.asarray(REFINE_MAX)
@@ -263,7 +264,8 @@ def _refine(plane, p0, target, grid: TableGrid, steps: int = REFINE_STEPS):
         return (jnp.where(better, q, p), jnp.where(better, eq, e),
                 jnp.where(better, jnp.minimum(2.0 * trust, 1.0), 0.25 * trust))
 
-    p, e, _ = jax.lax.fori_loop(0, steps, step, (p0, err2(p0), jnp.asarray(1.0)))
+    e0 = err2(p0) if e0 is None else e0
+    p, e, _ = jax.lax.fori_loop(0, steps, step, (p0, e0, jnp.asarray(1.0)))
     return p, e
 
 
@@ -304,7 +306,11 @@ def table_starts(table: SlipTable, apex, goal, h, hopper: Hopper, n_starts: int,
     best_th = jnp.argmin(cost, axis=0)
     _, cols = jax.lax.top_k(-jnp.min(cost, axis=0), n_starts)
     cells = jnp.stack([th_axis[best_th[cols]], s_axis[cols]], axis=1)
-    refined, errs = jax.vmap(lambda p: _refine(plane, p, target, g))(cells)
+    # A start's error is its node's (finite wherever the node's stride completed), so only
+    # a plane without a completed, landing node has no start.
+    node = jnp.sum((plane[best_th[cols], cols] - target) ** 2, axis=-1)
+    node = jnp.where(jnp.isfinite(node), node, jnp.inf)
+    refined, errs = jax.vmap(lambda p, e: _refine(plane, p, target, g, e0=e))(cells, node)
     order = jnp.argsort(errs)
     return refined[order], errs[order]
 

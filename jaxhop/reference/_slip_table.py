@@ -60,8 +60,9 @@ def _bilinear(plane, p, grid):
     return value, np.stack([d_th, d_s], axis=1)
 
 
-def _refine(plane, p0, target, grid):
-    """`jaxhop._slip_table._refine`: damped Gauss-Newton on the plane's interpolant."""
+def _refine(plane, p0, target, grid, e0):
+    """`jaxhop._slip_table._refine`: damped Gauss-Newton on the plane's interpolant, from
+    `p0` with squared error `e0`."""
     lo = np.array([grid[3][0], grid[4][0]])
     hi = np.array([grid[3][1], grid[4][1]])
 
@@ -69,7 +70,7 @@ def _refine(plane, p0, target, grid):
         r = _bilinear(plane, p, grid)[0] - target
         return float(r @ r) if np.all(np.isfinite(r)) else INF
 
-    p, e, trust = np.asarray(p0, float), err2(p0), 1.0
+    p, e, trust = np.asarray(p0, float), e0, 1.0
     for _ in range(REFINE_STEPS):
         value, jac = _bilinear(plane, p, grid)
         normal = jac.T @ jac
@@ -111,8 +112,11 @@ def table_starts(values, grid, apex, goal, h, hopper: Hopper, n_starts=TABLE_STA
     s_axis = np.linspace(*grid[4])
     col = cost.min(axis=0)
     cols = np.argsort(col, kind="stable")[:n_starts]  # as lax.top_k: ties to the lower
-    cells = [(th_axis[int(np.argmin(cost[:, c]))], s_axis[c]) for c in cols]
-    refined = [_refine(plane, p, target, grid) for p in cells]
+    rows = [int(np.argmin(cost[:, c])) for c in cols]
+    cells = [(th_axis[r], s_axis[c]) for r, c in zip(rows, cols)]
+    node = [float(np.sum((plane[r, c] - target) ** 2)) for r, c in zip(rows, cols)]
+    refined = [_refine(plane, p, target, grid, e if np.isfinite(e) else INF)
+               for p, e in zip(cells, node)]
     order = np.argsort([e for _, e in refined], kind="stable")
     return [refined[i][0] for i in order], [refined[i][1] for i in order]
 
