@@ -311,10 +311,12 @@ def bench_slip_deadbeat(quick: bool):
     first, warm, (ju, jok, stage) = timed(
         lambda: deadbeat_slips(apex, goal, 0.0, hopper, table), 1 if quick else 2)
     hit = within_1mm(apex, goal, ju)
-    # The multi-start solver alone (no table), in the same run's terms.
+    # The multi-start solver alone (no table), split over the devices as deadbeat_slips is.
+    from jaxhop._batching import chunked_map
+
     multi = jax.jit(jax.vmap(lambda a, g: deadbeat_slip(a, g, 0.0, hopper)))
-    ja, jg = jnp.asarray(apex), jnp.asarray(goal)
-    m_first, m_warm, (mu, _) = timed(lambda: multi(ja, jg), 1)
+    share = -(-n // len(jax.local_devices()))
+    m_first, m_warm, (mu, _) = timed(lambda: chunked_map(multi, n, share, (apex, goal)), 1)
     m_hit = within_1mm(apex, goal, np.asarray(mu))
     every = 128 if quick else 32
     sub = np.arange(0, n, every)

@@ -405,8 +405,9 @@ def deadbeat_slips(apex, goal, h, hopper: Hopper, table=None, accept: float = AC
     passes over the batch: every target runs the table's best start, only those it misses
     (C2 above `accept`) run the other table starts, only those still missing run the
     multi-start solver's starts.
-    Each pass is padded to a power of two (at least `min_batch`), so a few shapes serve
-    every batch, and no lane waits for a solve it does not need.
+    Each pass is split over the local devices, one chunk each, padded to a power of two
+    (at least `min_batch`), so a few shapes serve every batch, and no lane waits for a
+    solve it does not need.
 
     Arguments:
         apex, goal: `(n, 3)`; h: `(n,)` or a scalar. table: default the cached
@@ -416,7 +417,7 @@ def deadbeat_slips(apex, goal, h, hopper: Hopper, table=None, accept: float = AC
         `(u, ok, stage)` as NumPy arrays: the controls and flags of `deadbeat_slip`, and the
         last stage each target ran (3: the multi-start fallback).
     """
-    from ._batching import chunk_index
+    from ._batching import chunked_map
 
     table = slip_table() if table is None else table
     apex = np.atleast_2d(np.asarray(apex, float))
@@ -430,10 +431,10 @@ def deadbeat_slips(apex, goal, h, hopper: Hopper, table=None, accept: float = AC
     for first, last in _PASSES:
         if todo.size == 0:
             break
-        size = max(min_batch, 1 << (todo.size - 1).bit_length())
-        idx = todo[chunk_index(0, size, todo.size)]
-        out = [np.asarray(x)[: todo.size] for x in
-               _pass_fn()(apex[idx], goal[idx], h[idx], first, last, hopper, table)]
+        share = -(-todo.size // len(jax.local_devices()))
+        size = max(min_batch, 1 << (share - 1).bit_length())
+        out = chunked_map(_pass_fn(), todo.size, size, (apex[todo], goal[todo], h[todo]),
+                          (first, last, hopper, table))
         better = out[2] < c2[todo]
         th[todo] = np.where(better, out[0], th[todo])
         kc[todo] = np.where(better, out[1], kc[todo])
