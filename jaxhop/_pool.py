@@ -5,9 +5,10 @@ A vmapped while loop runs until the longest run of its chunk ends: with SLIP str
 deadbeat solve each) a chunk holding one run that loops to max_steps costs 60 strides per
 lane where most runs need about 12. So SLIP runs go through a pool instead: every device
 steps `POOL_LANES` runs by one stride (`run_step`, vmapped), the host retires the runs
-that ended and puts the next ones in their lanes (one host thread per device, one shared
-queue). Lanes with nothing to run repeat a live run of their device (same cost, results
-discarded). The lane count is fixed, so one compilation per device serves every sweep.
+that ended and puts the next ones in their lanes (one host thread per device, each with
+its own share of the runs). Lanes with nothing to run repeat a live run of their device
+(same cost, results discarded). The lane count is fixed, so one compilation per device
+serves every sweep.
 """
 
 from __future__ import annotations
@@ -56,22 +57,26 @@ def pool_runs(runs, apex0, key, consts, config: RunConfig, on_done, lanes=POOL_L
     hopper, disturbance, config)`. `strides`: end every run after that many apexes (its
     code is then `run_result`'s for a run cut off), with the same compiled step.
 
-    One host thread per device, all taking runs from one queue: the devices step (and, the
-    first time, compile) concurrently, and none waits for another.
+    One host thread per device, each with its own queue (every `n_devices`-th run): the
+    devices step (and, the first time, compile) concurrently, and none waits for another.
+    A run's last bits depend on the lane it occupies and on its neighbours (XLA vectorises
+    the lanes), so the runs are dealt to the devices in a fixed order rather than taken
+    from a shared queue as each thread gets to it: the same runs then give bitwise the
+    same results on the same number of devices, whatever the threads' timing.
     """
     if not runs:
         return
     # Placeholder leaves for a lane whose run starts in the next step (`fresh`).
     blank, treedef = jax.tree_util.tree_flatten(jax.device_get(run_init(jnp.zeros(3), config)))
-    queue, lock, stop = deque(runs), threading.Lock(), threading.Event()
+    devices = jax.local_devices()
+    lock, stop = threading.Lock(), threading.Event()
 
-    def worker(dev):
+    def worker(dev, queue):
         on_dev = jax.device_put((key,) + tuple(consts), dev)
         active = []  # (run, carry leaves, fresh)
         while not stop.is_set():
-            with lock:
-                while queue and len(active) < lanes:
-                    active.append((queue.popleft(), blank, True))
+            while queue and len(active) < lanes:
+                active.append((queue.popleft(), blank, True))
             if not active:
                 return
             # Spare lanes repeat live runs (same cost; their results are discarded).
@@ -95,7 +100,6 @@ def pool_runs(runs, apex0, key, consts, config: RunConfig, on_done, lanes=POOL_L
                 for run, fields in ended:
                     on_done(run, fields)
 
-    devices = jax.local_devices()
     # The step, loaded from disk or traced once here on lanes as the workers build them
     # (`jaxhop._programs`; tracing a SLIP decision takes about 20 s of Python): the device
     # threads then find it in jit's cache and only compile it (or load it from JAX's cache).
@@ -104,7 +108,8 @@ def pool_runs(runs, apex0, key, consts, config: RunConfig, on_done, lanes=POOL_L
     step = stored_program("pool-step", _pool_step, args0)
     step.trace(*jax.tree_util.tree_leaves(args0))
     with ThreadPoolExecutor(len(devices)) as ex:
-        futures = [ex.submit(worker, dev) for dev in devices]
+        futures = [ex.submit(worker, dev, deque(runs[i::len(devices)]))
+                   for i, dev in enumerate(devices)]
         try:
             for f in futures:
                 f.result()
