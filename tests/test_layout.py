@@ -16,7 +16,7 @@ PACKAGE = pathlib.Path(__file__).parent.parent / "jaxhop"
 STAGES = [
     ["__init__"],  # re-exports only; checked separately below
     ["_errors", "_params", "_paths", "_validate", "_result"],
-    ["_terrain", "_batching", "_progress"],
+    ["_terrain", "_batching", "_progress", "_programs"],
     ["_bhop", "_flight", "_slip", "_slip_deadbeat", "_slip_table"],
     ["_templates"],
     ["_regions", "_policies"],
