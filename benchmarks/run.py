@@ -28,9 +28,9 @@ Benchmarks:
   only (the twin reads the same table).
 - `slip_deadbeat`: 1 024 deadbeat solves to reachable targets; JAX `deadbeat_slips` (the
   table start and Gauss-Newton polish through diffrax, in passes over the targets that
-  missed, the multi-start solver last), beside the multi-start solver alone in the same
-  run; twin the same stages with a finite-difference Jacobian on every 32-th target
-  (`--quick`: every 128-th), scaled per item.
+  missed, the multi-start solver last), beside the multi-start solver alone (split over the
+  devices the same way) in the same run; twin the same stages with a finite-difference
+  Jacobian on every 32-th target (`--quick`: every 128-th), scaled per item.
 - `slip_decision`: latency of one SLIP decision (`decide_slip` with the table) for one
   measured apex, median over 64 sweep states; twin on 8 of them.
 - `slip_sweep`: SLIP runs (`run_batch(plan, initial, model="slip")`) on the BHop plan of
@@ -57,6 +57,7 @@ import numpy as np
 import jaxhop
 from jaxhop import Hopper, build_plan, builtin_terrain, paper_templates
 from jaxhop import reference as R
+from jaxhop._batching import chunked_map
 from jaxhop._execute import run_batch, sweep_grid
 from jaxhop._models import decide
 
@@ -312,8 +313,6 @@ def bench_slip_deadbeat(quick: bool):
         lambda: deadbeat_slips(apex, goal, 0.0, hopper, table), 1 if quick else 2)
     hit = within_1mm(apex, goal, ju)
     # The multi-start solver alone (no table), split over the devices as deadbeat_slips is.
-    from jaxhop._batching import chunked_map
-
     multi = jax.jit(jax.vmap(lambda a, g: deadbeat_slip(a, g, 0.0, hopper)))
     share = -(-n // len(jax.local_devices()))
     m_first, m_warm, (mu, _) = timed(lambda: chunked_map(multi, n, share, (apex, goal)), 1)

@@ -40,8 +40,6 @@ def _pool_step(carry, fresh, apex0, index, key, tables, true_terrain, hopper, di
     return carry, live, final
 
 
-
-
 def _lane_batch(pick, treedef, dev):
     """The carries, run indices and `fresh` flags of the lanes, on `dev`."""
     batch = [np.stack([p[1][i] for p in pick]) for i in range(treedef.num_leaves)]

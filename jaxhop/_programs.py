@@ -69,6 +69,9 @@ def program_key(name: str, leaves, treedef) -> str:
     return hashlib.sha256("\n".join(parts).encode()).hexdigest()
 
 
+_LOADED = {}  # this process's programs, by key: one jit (and its compilations) each
+
+
 def _folder() -> str | None:
     xla = jax.config.jax_compilation_cache_dir
     return None if not xla else os.path.join(xla, "jaxhop-programs")
@@ -104,9 +107,6 @@ def stored_program(name: str, fn, args: tuple, log=None):
     if key not in _LOADED:
         _LOADED[key] = _load_or_export(name, key, flat, leaves, log)
     return _LOADED[key]
-
-
-_LOADED = {}  # this process's programs, by key: one jit (and its compilations) each
 
 
 def _load_or_export(name, key, flat, leaves, log):

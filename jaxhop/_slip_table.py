@@ -272,7 +272,8 @@ def _refine(plane, p0, target, grid: TableGrid, steps: int = REFINE_STEPS, e0=No
 def table_starts(table: SlipTable, apex, goal, h, hopper: Hopper, n_starts: int,
                  terrain=None, wind=None):
     """`n_starts` starting points `(th, s)` of the deadbeat for the stride, best first, with
-    their interpolated squared errors (in the table's units).
+    their squared errors in the table's units (the refined point's, or its grid node's
+    where refining finds nothing better; inf: no start).
 
     The best cell of each of the `n_starts` best `s` columns (C2 of eq 16 on the plane,
     `table_slice`), each refined by Newton steps on the plane's interpolant (`_refine`),

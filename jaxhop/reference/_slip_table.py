@@ -92,7 +92,7 @@ def _refine(plane, p0, target, grid, e0):
 
 def table_starts(values, grid, apex, goal, h, hopper: Hopper, n_starts=TABLE_STARTS,
                  terrain=None):
-    """`n_starts` refined table starts `(th, s)`, best first, and their interpolated errors
+    """`n_starts` refined table starts `(th, s)`, best first, and their squared errors
     (`jaxhop._slip_table`)."""
     plane = table_slice(values, grid, apex, goal, h, hopper)
     target = np.array([(goal[0] - apex[0]) / hopper.rho0,
