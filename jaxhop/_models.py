@@ -91,7 +91,8 @@ def recovery_candidates(apex, tables: PlanTables, hopper: Hopper):
     return ids, jnp.repeat(tb.block_count > 0, tm.n)
 
 
-def _match_positions(apex, tables: PlanTables, hopper: Hopper, recover: bool = False):
+def _match_positions(apex, tables: PlanTables, hopper: Hopper, recover: bool = False,
+                     exclude=None):
     """Situated candidates near the apex and their deployment position (`_NO_MATCH` where
     the domain does not contain the apex), and whether the apex was recovered.
 
@@ -101,14 +102,30 @@ def _match_positions(apex, tables: PlanTables, hopper: Hopper, recover: bool = F
     holds and the tables carry `hold_pos`, the undeployed situated domains containing the
     apex take part in hold order (a holding stride, also reported as recovered; for them
     `best_inst` names the undeployed instantiated policy).
+
+    `exclude(ids) -> mask`: situated policies left out, as if their domains did not hold
+    the apex and were not near it, unless that leaves no candidate at all.
     """
+    ids, pos, recovered = _positions(apex, tables, hopper, recover, None)
+    if exclude is None:
+        return ids, pos, recovered
+    _, pos_ex, recovered_ex = _positions(apex, tables, hopper, recover, exclude)
+    none = jnp.all(pos_ex == _NO_MATCH)
+    return ids, jnp.where(none, pos, pos_ex), jnp.where(none, recovered, recovered_ex)
+
+
+def _positions(apex, tables: PlanTables, hopper: Hopper, recover: bool, exclude):
     ids, inside = candidate_situated(apex, tables.table, tables.templates, tables.terrain,
                                      hopper)
     pos = jnp.where(inside, tables.best_pos[ids], _NO_MATCH)
+    if exclude is not None:
+        pos = jnp.where(exclude(ids), _NO_MATCH, pos)
     if not recover:
         return ids, pos, jnp.asarray(False)
     rec, valid = recovery_candidates(apex, tables, hopper)
     best = tables.best_pos[rec]
+    if exclude is not None:
+        best = jnp.where(exclude(rec), _NO_MATCH, best)
     d = jnp.where(valid & (best < _NO_MATCH), domain_distance(apex, rec, tables, hopper),
                   jnp.inf)
     near = jnp.min(d)
@@ -206,31 +223,32 @@ SLIP_STAGE_C2 = 1e-4
 
 
 def _first_accepted(one, goals, h, valid):
-    """`one(goal, h) -> (u, miss)` on the valid candidates in order, each only where every
-    earlier one missed (`miss > 1`). One while loop: under `vmap` a candidate costs nothing
-    in a batch whose lanes all accepted an earlier one. Candidates not tried keep
-    `miss = inf`."""
+    """`one(goal, h) -> (u, miss, pred)` on the valid candidates in order, each only where
+    every earlier one missed (`miss > 1`). One while loop: under `vmap` a candidate costs
+    nothing in a batch whose lanes all accepted an earlier one (or have none valid).
+    Candidates not tried keep `miss = inf`."""
     n = goals.shape[0]
     order = jnp.argsort(~valid, stable=True)
     n_valid = jnp.sum(valid)
 
     def more(carry):
-        i, _, misses = carry
+        i, _, misses, _ = carry
         return (i < n_valid) & jnp.all(misses > 1.0)
 
     def next_one(carry):
-        i, us, misses = carry
+        i, us, misses, preds = carry
         c = order[i]
-        u, m = one(goals[c], h[c])
-        return i + 1, us.at[c].set(u), misses.at[c].set(m)
+        u, m, p = one(goals[c], h[c])
+        return i + 1, us.at[c].set(u), misses.at[c].set(m), preds.at[c].set(p)
 
-    carry = (jnp.asarray(0), jnp.zeros((n, 3)), jnp.full((n,), jnp.inf))
-    _, us, misses = jax.lax.while_loop(more, next_one, carry)
-    return us, misses
+    carry = (jnp.asarray(0), jnp.zeros((n, 3)), jnp.full((n,), jnp.inf),
+             jnp.full((n, 3), jnp.nan))
+    _, us, misses, preds = jax.lax.while_loop(more, next_one, carry)
+    return us, misses, preds
 
 
 def decide_slip(apex, tables: PlanTables, hopper: Hopper, n_candidates: int = SLIP_CANDIDATES,
-                recover: bool = False, heights=None, wind=None):
+                recover: bool = False, heights=None, wind=None, recover_again=True):
     """SLIP controls for one measured apex: the deadbeat on the best SLIP-reachable match.
 
     The BHop plan's domains and goals ignore what the SLIP stance cannot do (the paper's
@@ -240,6 +258,14 @@ def decide_slip(apex, tables: PlanTables, hopper: Hopper, n_candidates: int = SL
     matching policies, predicts each stride over the policy's foothold height, and takes the
     first in deployment order whose prediction lies within `SLIP_ACCEPT` of its goal; when
     none does, the one with the smallest miss relative to `SLIP_ACCEPT`.
+
+    A chosen miss whose predicted apex lies in the same policy's domain again, no nearer its
+    goal, would repeat from there stride after stride (a goal ahead of a hopper standing
+    still that the BHop plan allows, docs/decisions.md, "Strides that stay put"): the
+    decision is then taken again without that policy (the next matches, or with `recover`
+    the nearest other domain), where there is one. `recover_again` (traced): whether that
+    second decision may be a recovery (False: the paper's controller run by the adaptive
+    controller's program, which treats a recovered apex as outside the domains).
 
     With `recover` (the adaptive controller) an apex in no domain is recovered
     (`first_match`). `heights`: the block heights of the controller's corrected map
@@ -252,37 +278,50 @@ def decide_slip(apex, tables: PlanTables, hopper: Hopper, n_candidates: int = SL
     from ._slip import slip_stride
     from ._slip_deadbeat import SEARCH_TOL, deadbeat_slip
 
-    ids, pos, recovered = _match_positions(apex, tables, hopper, recover)
-    neg, k = jax.lax.top_k(-pos, n_candidates)
-    valid = -neg < _NO_MATCH
-    sit = ids[k]
-    inst = tables.best_inst[sit]
-    goals = tables.goals[inst]
-    h = tables.table.centre[sit // tables.templates.n, 1]
-    terrain = tables.terrain
-    if heights is not None:
-        h = heights[tables.table.seg_block[sit // tables.templates.n]]
-        terrain = terrain.with_heights(heights)
+    nt = tables.templates.n
+    terrain = tables.terrain if heights is None else tables.terrain.with_heights(heights)
+    scale = jnp.asarray(SLIP_ACCEPT)
 
     def one(goal, h_):
         u, ok = deadbeat_slip(apex, goal, h_, hopper, terrain=terrain, wind=wind,
                               table=tables.slip, fallback=False, accept=SLIP_STAGE_C2)
         pred, code, _ = slip_stride(apex, u, terrain, hopper, 0.0 if wind is None else wind,
                                     SEARCH_TOL)
-        miss = jnp.max(jnp.abs(pred - goal) / jnp.asarray(SLIP_ACCEPT))
-        return u, jnp.where((code == OK) & jnp.all(jnp.isfinite(pred)), miss, jnp.inf)
+        miss = jnp.max(jnp.abs(pred - goal) / scale)
+        return u, jnp.where((code == OK) & jnp.all(jnp.isfinite(pred)), miss, jnp.inf), pred
 
-    if tables.slip is None:
-        u, miss = jax.vmap(one)(goals, h)
-    else:
-        u, miss = _first_accepted(one, goals, h, valid)
-    miss = jnp.where(valid, miss, jnp.inf)
-    good = miss <= 1.0
-    pick = jnp.where(jnp.any(good), jnp.argmax(good), jnp.argmin(miss))
-    # No candidate at all (outside every domain) or no completed stride: the first match.
-    pick = jnp.where(jnp.isfinite(miss[pick]), pick, 0)
-    out = (valid[0], u[pick], inst[pick])
-    return out + (recovered,) if recover else out
+    def choose(exclude, run):
+        ids, pos, recovered = _match_positions(apex, tables, hopper, recover, exclude)
+        neg, k = jax.lax.top_k(-pos, n_candidates)
+        valid = -neg < _NO_MATCH
+        sit = ids[k]
+        inst = tables.best_inst[sit]
+        goals = tables.goals[inst]
+        h = tables.table.centre[sit // nt, 1]
+        if heights is not None:
+            h = heights[tables.table.seg_block[sit // nt]]
+        if tables.slip is None:
+            u, miss, pred = jax.vmap(one)(goals, h)
+        else:
+            u, miss, pred = _first_accepted(one, goals, h, valid & run)
+        miss = jnp.where(valid, miss, jnp.inf)
+        good = miss <= 1.0
+        pick = jnp.where(jnp.any(good), jnp.argmax(good), jnp.argmin(miss))
+        # No candidate at all (outside every domain) or no completed stride: the first match.
+        pick = jnp.where(jnp.isfinite(miss[pick]), pick, 0)
+        # A miss that lands back in the same domain no nearer its goal is a loop: the same
+        # apex gives the same decision (docs/decisions.md, "Strides that stay put").
+        found_next, sit_next, _ = first_match(pred[pick], tables, hopper)
+        away = jnp.max(jnp.abs(apex - goals[pick]) / scale) <= miss[pick]
+        stuck = (~jnp.any(good) & jnp.isfinite(miss[pick]) & found_next
+                 & (sit_next == sit[pick]) & away)
+        return (valid[0], u[pick], inst[pick], recovered), sit[pick], stuck
+
+    first, sit, stuck = choose(None, True)
+    again, _, _ = choose(lambda ids: ids == sit, stuck)
+    use = stuck & again[0] & (recover_again | ~again[3])
+    out = jax.tree.map(lambda a, b: jnp.where(use, a, b), again, first)
+    return out if recover else out[:3]
 
 
 class Model(eqx.Module):
@@ -312,11 +351,13 @@ class Model(eqx.Module):
         raise NotImplementedError
 
     def decide_adaptive(self, apex, tables: PlanTables, hopper: Hopper, wind, heights,
-                        h_touch):
+                        h_touch, on=None):
         """The adaptive controller's decision with the estimated `wind` (`None`: the
         model's deadbeat is wind-blind) on the corrected map's block `heights`, with the
         foothold height `h_touch` sensed for an instantaneous stance (else NaN),
-        recovering an apex in no domain: `(found, u, instantiated, recovered)`."""
+        recovering an apex in no domain: `(found, u, instantiated, recovered)`. `on`
+        (traced, `None`: on): the adaptive parts switched on (the run loop drops a
+        recovered decision where they are off)."""
         raise NotImplementedError
 
     def foot_offset(self, u, hopper: Hopper):
@@ -335,7 +376,7 @@ class _BHop(Model):
     def decide(self, apex, tables, hopper):
         return decide_bhop(apex, tables, hopper)
 
-    def decide_adaptive(self, apex, tables, hopper, wind, heights, h_touch):
+    def decide_adaptive(self, apex, tables, hopper, wind, heights, h_touch, on=None):
         return decide_bhop(apex, tables, hopper, wind, heights, h_touch)
 
     def foot_offset(self, u, hopper):
@@ -354,8 +395,9 @@ class _Slip(Model):
     def decide(self, apex, tables, hopper):
         return decide_slip(apex, tables, hopper)
 
-    def decide_adaptive(self, apex, tables, hopper, wind, heights, h_touch):
-        return decide_slip(apex, tables, hopper, recover=True, heights=heights, wind=wind)
+    def decide_adaptive(self, apex, tables, hopper, wind, heights, h_touch, on=None):
+        return decide_slip(apex, tables, hopper, recover=True, heights=heights, wind=wind,
+                           recover_again=True if on is None else on)
 
     def foot_offset(self, u, hopper):
         return hopper.rho0 * jnp.stack([jnp.sin(u[0]), -jnp.cos(u[0])])

@@ -190,20 +190,27 @@ def test_a_reversing_stride_lifts_off_behind_its_foot():
     assert (dy[keep] > 0).any() and (dy[keep] < 0).any()
 
 
+@pytest.fixture(scope="module")
+def perceived_slip_plan():
+    """The SLIP plan on the perceived map of `--noise ground` seed 0, and the true map."""
+    from jaxhop._cli import _perceived
+    from jaxhop._plan import build_plan
+
+    true = builtin_terrain("reference")
+    return build_plan(_perceived(true, 0), None, templates_for("slip"), progress=False), true
+
+
 @pytest.mark.slow
-def test_slip_reaches_the_goal_where_reversing_goals_made_it_cycle():
+def test_slip_reaches_the_goal_where_reversing_goals_made_it_cycle(perceived_slip_plan):
     # Under ground noise seed 0 the planner's goal block is 0.117 m too high. Without the
     # reversal rule the SLIP plan's last intermediate goals asked for forward shifts while
     # reversing, and runs from these apexes cycled through three policies until
     # max_steps (0 of 48 sweep states succeeded). The success test is the goal
     # tolerance: the true apex within 0.05 of the goal in every coordinate.
-    from jaxhop._cli import _perceived
     from jaxhop._execute import run_batch
     from jaxhop._models import in_global_domain
-    from jaxhop._plan import build_plan
 
-    true = builtin_terrain("reference")
-    plan = build_plan(_perceived(true, 0), None, templates_for("slip"), progress=False)
+    plan, true = perceived_slip_plan
     starts = np.array([[8.984, 1.51, 0.162], [8.953, 1.487, -0.097], [9.021, 1.506, -0.085],
                        [8.613, 1.777, 1.604]])
     assert in_global_domain(starts, plan.tables(), HOPPER).all()
@@ -212,6 +219,42 @@ def test_slip_reaches_the_goal_where_reversing_goals_made_it_cycle():
     assert np.all(out["code"] == 0), out["code"]
     last = np.array([a[int(s)] for a, s in zip(out["apexes"], out["steps"])])
     assert np.all(np.abs(last - plan.goal) <= 0.05)
+
+
+@pytest.mark.slow
+def test_a_slip_miss_that_stays_put_is_decided_again(perceived_slip_plan):
+    # Under ground noise (seed 0) this apex in the goal area lies only in the domain of a
+    # policy whose goal is 0.17 m ahead with a backward speed: out of a SLIP stride's
+    # reach, its best miss is a stride in place that lands in the same domain again no
+    # nearer the goal. Runs through here hopped in place for 20-25 strides (about 30 in
+    # all). The adaptive controller decides again without that policy (the nearest other
+    # domain, a recovery), and the run from here reaches the goal within 12 strides.
+    from jaxhop._execute import run_batch
+    from jaxhop._models import SLIP_ACCEPT, decide_slip, first_match
+    from jaxhop._slip import slip_stride
+    from jaxhop._slip_deadbeat import SEARCH_TOL, deadbeat_slip
+
+    plan, true = perceived_slip_plan
+    tables = plan.tables(slip=True)
+    apex = jnp.array([9.0216, 1.4916, -0.0265])
+    found, sit, inst = first_match(apex, tables, HOPPER)
+    goal = tables.goals[inst]
+    assert found and goal[0] - apex[0] > 0.1 and goal[2] < 0
+    # The premise, from the deadbeat and the stride themselves: the best miss stays put.
+    h = tables.table.centre[sit // tables.templates.n, 1]
+    u, _ = deadbeat_slip(apex, goal, h, HOPPER, terrain=tables.terrain, table=tables.slip)
+    pred, code, _ = slip_stride(apex, u, tables.terrain, HOPPER, 0.0, SEARCH_TOL)
+    scale = np.asarray(SLIP_ACCEPT)
+    miss = float(np.max(np.abs(pred - goal) / scale))
+    assert code == 0 and abs(float(pred[0] - apex[0])) < 0.05 and miss > 1
+    assert miss >= float(np.max(np.abs(apex - goal) / scale))
+    assert int(first_match(pred, tables, HOPPER)[1]) == int(sit)
+
+    _, _, chosen, recovered = decide_slip(apex, tables, HOPPER, recover=True)
+    assert int(chosen) != int(inst) and bool(recovered)
+    out = run_batch(plan, np.asarray(apex)[None], key=jax.random.key(0), true_terrain=true,
+                    model="slip", controller="adaptive", max_steps=12)
+    assert out["code"][0] == 0, (out["code"], out["steps"])
 
 
 @pytest.fixture(scope="module")

@@ -103,21 +103,34 @@ class Controller:
         The SLIP deadbeat for each of the `n_candidates` highest-priority matching policies,
         its stride predicted over the policy's foothold; the first in deployment order whose
         prediction lies within `SLIP_ACCEPT` of its goal wins, else the smallest miss
-        relative to `SLIP_ACCEPT`, else (no completed stride) the first match.
+        relative to `SLIP_ACCEPT`, else (no completed stride) the first match. A miss that
+        lands back in the chosen policy's domain no nearer its goal is a loop: the decision
+        is taken again without that policy, where another matches.
 
         Returns:
             `(found, u, instantiated)`; `u` is None when nothing matches.
         """
         apex = np.asarray(apex, float)
+        found, u, inst, s, stuck = self._choose(apex, n_candidates, -1)
+        if stuck:
+            again = self._choose(apex, n_candidates, s)
+            if again[0]:
+                return again[:3]
+        return found, u, inst
+
+    def _choose(self, apex, n_candidates, exclude):
+        """`(found, u, instantiated, situated, stuck)` of `decide_slip` over the matches
+        other than situated policy `exclude`."""
         ids, inside = self.plan.situation.candidate_situated_one(apex)
-        pos = np.where(inside, self.best_pos[ids], _BIG)
+        pos = np.where(inside & (ids != exclude), self.best_pos[ids], _BIG)
         order = np.argsort(pos, kind="stable")[:n_candidates]
         order = order[pos[order] < _BIG]
         if order.size == 0:
-            return False, None, -1
+            return False, None, -1, -1, False
         sit = self.plan.situation
-        insts = [int(self.best_inst[int(ids[k])]) for k in order]
-        hs = [sit.segs.centre[int(ids[k]) // sit.templates.n, 1] for k in order]
+        sits = [int(ids[k]) for k in order]
+        insts = [int(self.best_inst[k]) for k in sits]
+        hs = [sit.segs.centre[k // sit.templates.n, 1] for k in sits]
 
         def one(c, **kw):
             goal = self.plan.goals[insts[c]]
@@ -125,17 +138,19 @@ class Controller:
             pred, code, _ = slip_stride(apex, u, sit.terrain, sit.hopper, 0.0, SEARCH_RTOL,
                                        SEARCH_ATOL)
             ok = code == OK and np.all(np.isfinite(pred))
-            return u, float(np.max(np.abs(pred - goal) / SLIP_ACCEPT)) if ok else np.inf
+            miss = float(np.max(np.abs(pred - goal) / SLIP_ACCEPT)) if ok else np.inf
+            return u, miss, pred
 
         if self.slip_table is None:
-            us, misses = map(list, zip(*(one(c) for c in range(len(order)))))
+            us, misses, preds = map(list, zip(*(one(c) for c in range(len(order)))))
         else:
             # `jaxhop._models._first_accepted`: the candidates in order from the table's
             # starts until one is accepted.
-            us, misses = [np.zeros(3)] * len(order), [np.inf] * len(order)
+            n = len(order)
+            us, misses, preds = [np.zeros(3)] * n, [np.inf] * n, [None] * n
             for c in range(len(order)):
-                us[c], misses[c] = one(c, table=self.slip_table, fallback=False,
-                                       accept=SLIP_STAGE_C2)
+                us[c], misses[c], preds[c] = one(c, table=self.slip_table, fallback=False,
+                                                 accept=SLIP_STAGE_C2)
                 if misses[c] <= 1.0:
                     break
         misses = np.asarray(misses)
@@ -143,7 +158,13 @@ class Controller:
         pick = int(np.argmax(good)) if good.any() else int(np.argmin(misses))
         if not np.isfinite(misses[pick]):
             pick = 0
-        return True, us[pick], insts[pick]
+        stuck = False
+        if not good.any() and np.isfinite(misses[pick]):
+            goal = self.plan.goals[insts[pick]]
+            away = np.max(np.abs(apex - goal) / SLIP_ACCEPT) <= misses[pick]
+            found_next, sit_next, _ = self.first_match(preds[pick])
+            stuck = bool(away and found_next and sit_next == sits[pick])
+        return True, us[pick], insts[pick], sits[pick], stuck
 
     def controls(self, apex, s, a, model="bhop"):
         """The deadbeat controls of `decide` for the matched situated / instantiated policy."""
