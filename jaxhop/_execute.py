@@ -26,6 +26,7 @@ from ._models import model_for
 from ._params import Disturbance
 from ._plan import Plan
 from ._pool import pool_runs as _pool_runs
+from ._programs import stored_array
 from ._progress import Progress
 from ._result import Result, failure_counts
 from ._runloop import RUN_FIELDS, _batch, run_config, run_init, run_result
@@ -252,7 +253,8 @@ def slip_verified(apexes, plan: Plan, *, key=None, goal=None, max_steps: int = 6
 
     The stride is the SLIP lane pool's, with the run settings of the sweep it serves
     (`key, goal, max_steps, tolerance, controller`, as `run_batch`), so that both use one
-    compiled program.
+    compiled program. The strides' ends are kept on disk for the same states, plan and
+    settings (`jaxhop._programs.stored_array`): a second sweep of a plan skips them.
     """
     apexes = np.atleast_2d(np.asarray(apexes, float))
     n = apexes.shape[0]
@@ -261,13 +263,18 @@ def slip_verified(apexes, plan: Plan, *, key=None, goal=None, max_steps: int = 6
                         controller)
     tables = plan.tables(slip=True)
     consts = (tables, plan.terrain, plan.hopper, Disturbance(), config)
-    nxt = np.full((n, 3), np.nan)
 
-    def on_done(run, fields):
-        nxt[run] = fields[RUN_FIELDS.index("apexes")][1]
+    def first_strides():
+        nxt = np.full((n, 3), np.nan)
 
-    if n:
-        _pool_runs(list(range(n)), apexes, key, consts, config, on_done, strides=1)
+        def on_done(run, fields):
+            nxt[run] = fields[RUN_FIELDS.index("apexes")][1]
+
+        if n:
+            _pool_runs(list(range(n)), apexes, key, consts, config, on_done, strides=1)
+        return nxt
+
+    nxt = stored_array("slip-verified", first_strides, (apexes, key, consts))
     completed = np.all(np.isfinite(nxt), axis=1)
     return completed & in_global_domain(np.where(completed[:, None], nxt, 0.0), tables,
                                         plan.hopper)

@@ -14,6 +14,9 @@ ever done by the same code and library versions, which is why the export may con
 LAPACK / solver calls without a cross-version compatibility guarantee. No compilation cache
 directory (JAX's cache turned off) means nothing is saved. A file that cannot be read is
 reported and replaced; a program that cannot be exported runs traced, as plain `jax.jit`.
+
+`stored_array` keeps a computed array the same way, under a SHA-256 that also covers the
+values of its inputs and the number of devices (a run's last bits depend on its lanes).
 """
 
 from __future__ import annotations
@@ -27,6 +30,7 @@ from importlib import metadata
 
 import jax
 import jax.export as jex
+import numpy as np
 
 _typeof = getattr(jax, "typeof", None) or jax.core.get_aval
 _LIBS = ("jax", "jaxlib", "diffrax", "equinox", "optimistix", "lineax", "numpy")
@@ -136,3 +140,41 @@ def _load_or_export(name, key, flat, leaves, log):
         except OSError as err:
             report(f"cannot save program {path}: {err.strerror}")
     return jax.jit(exported.call)
+
+
+def _value_bytes(leaf) -> bytes:
+    leaf = jax.random.key_data(leaf) if jax.dtypes.issubdtype(
+        getattr(leaf, "dtype", None), jax.dtypes.prng_key) else leaf
+    arr = np.ascontiguousarray(np.asarray(leaf))
+    return f"{arr.dtype}{arr.shape}".encode() + arr.tobytes()
+
+
+def stored_array(name: str, compute, inputs, log=None) -> np.ndarray:
+    """`compute()` (an array computed from `inputs` alone, by jaxhop), from disk when the
+    same inputs were computed before with the same code, libraries and device count.
+
+    `log`: where a problem with the saved file is reported (default: a warning).
+    """
+    leaves, treedef = jax.tree_util.tree_flatten(inputs)
+    h = hashlib.sha256(program_key(name, leaves, treedef).encode())
+    h.update(f"devices={jax.local_device_count()}".encode())
+    for leaf in leaves:
+        h.update(_value_bytes(leaf))
+    report = log or (lambda m: warnings.warn(m, stacklevel=3))
+    folder = _folder()
+    path = None if folder is None else os.path.join(folder, f"{name}-{h.hexdigest()[:32]}.npy")
+    if path is not None and os.path.exists(path):
+        try:
+            return np.load(path, allow_pickle=False)
+        except Exception as err:  # noqa: BLE001 - any unreadable file is computed again
+            report(f"stored {path}: unreadable ({type(err).__name__}); computing it again")
+    value = np.asarray(compute())
+    if path is not None:
+        try:
+            os.makedirs(folder, exist_ok=True)
+            tmp = f"{path}.{os.getpid()}.tmp.npy"
+            np.save(tmp, value, allow_pickle=False)
+            os.replace(tmp, path)
+        except OSError as err:
+            report(f"cannot save {path}: {err.strerror}")
+    return value

@@ -98,3 +98,29 @@ def test_no_cache_folder_saves_nothing(tmp_path, monkeypatch):
     out = _call(_programs.stored_program("spring", _program(traces), args), args)
     np.testing.assert_allclose(out[0], 3.0 * np.ones(3), rtol=1e-12)
     assert not any(tmp_path.iterdir())
+
+
+def test_a_stored_array_is_computed_once_per_input_values(fresh, tmp_path):
+    calls = []
+
+    def compute(x):
+        calls.append(1)
+        return np.cumsum(np.asarray(x)) * 2.0
+
+    x, key = jnp.linspace(0.0, 1.0, 6), jax.random.key(1)
+    first = _programs.stored_array("sums", lambda: compute(x), (x, key))
+    again = _programs.stored_array("sums", lambda: compute(x), (x, key))
+    np.testing.assert_array_equal(again, np.cumsum(np.linspace(0.0, 1.0, 6)) * 2.0)
+    np.testing.assert_array_equal(first, again)
+    assert len(calls) == 1
+    # Other values of the same shapes, another key: computed again.
+    _programs.stored_array("sums", lambda: compute(x + 1.0), (x + 1.0, key))
+    _programs.stored_array("sums", lambda: compute(x), (x, jax.random.key(2)))
+    assert len(calls) == 3
+    # An unreadable file is reported and computed again.
+    for path in (tmp_path / "programs").iterdir():
+        path.write_bytes(b"not an array")
+    messages = []
+    out = _programs.stored_array("sums", lambda: compute(x), (x, key), log=messages.append)
+    assert len(calls) == 4 and messages and "unreadable" in messages[0]
+    np.testing.assert_array_equal(out, first)
