@@ -19,6 +19,12 @@ def bucket(n: int, step: int) -> int:
     return max(step, step * -(-n // step))
 
 
+def pow2_at_least(n: int) -> int:
+    """The smallest power of two that holds `n` items (1 for `n <= 1`): batch sizes from a
+    handful of shapes."""
+    return 1 << (max(n, 1) - 1).bit_length()
+
+
 def chunk_index(start: int, size: int, n: int) -> np.ndarray:
     """Indices `start .. start + size - 1`, the ones past the end repeating item `n - 1`."""
     return np.arange(start, start + size).clip(max=max(n - 1, 0))

@@ -16,7 +16,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._batching import chunk_index
+from ._batching import chunk_index, pow2_at_least
 from ._checkpoint import ChunkStore as _ChunkStore
 from ._checkpoint import fingerprint
 from ._errors import InputError
@@ -92,7 +92,7 @@ def run_batch(plan: Plan, apex0, *, key=None, true_terrain: Terrain | None = Non
     devices = jax.local_devices()
     if chunk is None:
         full = model.chunk
-        chunk = full if n >= full else 1 << (max(n, 1) - 1).bit_length()
+        chunk = full if n >= full else pow2_at_least(n)
     store = None
     if checkpoint is not None:
         store = _ChunkStore(checkpoint, fingerprint(plan, apex0, key, true_terrain,

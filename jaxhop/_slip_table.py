@@ -34,7 +34,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._batching import run_once
+from ._batching import pow2_at_least, run_once
 from ._params import Hopper
 from ._paths import cache_dir
 from ._slip_deadbeat import (
@@ -433,7 +433,7 @@ def deadbeat_slips(apex, goal, h, hopper: Hopper, table=None, accept: float = AC
         if todo.size == 0:
             break
         share = -(-todo.size // len(jax.local_devices()))
-        size = max(min_batch, 1 << (share - 1).bit_length())
+        size = max(min_batch, pow2_at_least(share))
         out = chunked_map(_pass_fn(), todo.size, size, (apex[todo], goal[todo], h[todo]),
                           (first, last, hopper, table))
         better = out[2] < c2[todo]

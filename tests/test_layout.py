@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxhop._batching import bucket, chunked_map, pad_to
+from jaxhop._batching import bucket, chunked_map, pad_to, pow2_at_least
 from jaxhop._progress import Progress
 
 PACKAGE = pathlib.Path(__file__).parent.parent / "jaxhop"
@@ -98,6 +98,9 @@ def test_chunked_map_equals_one_call_over_all_items():
 
 def test_bucket_and_pad_to():
     assert [bucket(n, 8) for n in (0, 1, 8, 9, 16)] == [8, 8, 8, 16, 16]
+    # Brute force: the first power of two at least n.
+    for n in range(0, 70):
+        assert pow2_at_least(n) == next(2**k for k in range(10) if 2**k >= max(n, 1))
     padded = pad_to(jnp.ones((2, 3)), 5, [7.0, 8.0, 9.0])
     assert padded.shape == (5, 3)
     np.testing.assert_array_equal(np.asarray(padded[2:]), np.tile([7.0, 8.0, 9.0], (3, 1)))
