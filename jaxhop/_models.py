@@ -104,17 +104,8 @@ def _match_positions(apex, tables: PlanTables, hopper: Hopper, recover: bool = F
     `best_inst` names the undeployed instantiated policy).
 
     `exclude(ids) -> mask`: situated policies left out, as if their domains did not hold
-    the apex and were not near it, unless that leaves no candidate at all.
+    the apex and were not near it.
     """
-    ids, pos, recovered = _positions(apex, tables, hopper, recover, None)
-    if exclude is None:
-        return ids, pos, recovered
-    _, pos_ex, recovered_ex = _positions(apex, tables, hopper, recover, exclude)
-    none = jnp.all(pos_ex == _NO_MATCH)
-    return ids, jnp.where(none, pos, pos_ex), jnp.where(none, recovered, recovered_ex)
-
-
-def _positions(apex, tables: PlanTables, hopper: Hopper, recover: bool, exclude):
     ids, inside = candidate_situated(apex, tables.table, tables.templates, tables.terrain,
                                      hopper)
     pos = jnp.where(inside, tables.best_pos[ids], _NO_MATCH)
@@ -319,6 +310,7 @@ def decide_slip(apex, tables: PlanTables, hopper: Hopper, n_candidates: int = SL
 
     first, sit, stuck = choose(None, True)
     again, _, _ = choose(lambda ids: ids == sit, stuck)
+    # Where no other policy is left, `again` found nothing and the first decision stands.
     use = stuck & again[0] & (recover_again | ~again[3])
     out = jax.tree.map(lambda a, b: jnp.where(use, a, b), again, first)
     return out if recover else out[:3]

@@ -131,15 +131,24 @@ def _load_or_export(name, key, flat, leaves, log):
     except Exception:  # noqa: BLE001 - no export (e.g. no flatbuffers): trace as usual
         return jax.jit(flat)
     if path is not None:
-        try:
-            os.makedirs(folder, exist_ok=True)
-            tmp = f"{path}.{os.getpid()}.tmp"
+        def write(tmp):
             with open(tmp, "wb") as f:
                 f.write(blob)
-            os.replace(tmp, path)
-        except OSError as err:
-            report(f"cannot save program {path}: {err.strerror}")
+
+        _save(path, write, report)
     return jax.jit(exported.call)
+
+
+def _save(path: str, write, report) -> None:
+    """`write(tmp)` then an atomic rename to `path` (a reader never sees half a file); a
+    failure is reported, not raised."""
+    try:
+        os.makedirs(os.path.dirname(path), exist_ok=True)
+        tmp = f"{path}.{os.getpid()}.tmp"
+        write(tmp)
+        os.replace(tmp, path)
+    except OSError as err:
+        report(f"cannot save {path}: {err.strerror}")
 
 
 def _value_bytes(leaf) -> bytes:
@@ -170,11 +179,9 @@ def stored_array(name: str, compute, inputs, log=None) -> np.ndarray:
             report(f"stored {path}: unreadable ({type(err).__name__}); computing it again")
     value = np.asarray(compute())
     if path is not None:
-        try:
-            os.makedirs(folder, exist_ok=True)
-            tmp = f"{path}.{os.getpid()}.tmp.npy"
-            np.save(tmp, value, allow_pickle=False)
-            os.replace(tmp, path)
-        except OSError as err:
-            report(f"cannot save {path}: {err.strerror}")
+        def write(tmp):
+            with open(tmp, "wb") as f:
+                np.save(f, value, allow_pickle=False)
+
+        _save(path, write, report)
     return value
