@@ -18,7 +18,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ._params import Hopper
-from ._paths import cache_dir
+from ._paths import atomic_write, cache_dir
 from ._plan import PROBE_HALF_WIDTH, Plan, _check_goal, build_plan
 from ._policies import PairGrid
 from ._templates import Templates, paper_templates
@@ -49,15 +49,12 @@ def plan_key(terrain: Terrain, goal, templates: Templates, hopper: Hopper,
 def save_plan(plan: Plan, path: str, key: str) -> None:
     """Write `plan` to `path` (through a temporary file, so a reader never sees half of it)."""
     p = plan.prepares.tocsr()
-    tmp = f"{path}.{os.getpid()}.tmp"  # processes sharing the cache write apart
-    with open(tmp, "wb") as f:
-        np.savez_compressed(
-            f, key=np.asarray(key), situated=plan.situated, target=plan.target,
-            goals=plan.goals, safety=plan.safety, margin=plan.margin, is_goal=plan.is_goal,
-            robustness=plan.robustness,
-            p_indptr=p.indptr, p_indices=p.indices, p_shape=np.asarray(p.shape),
-            order=plan.order, stats=np.asarray(json.dumps(plan.stats)))
-    os.replace(tmp, path)
+    atomic_write(path, lambda f: np.savez_compressed(
+        f, key=np.asarray(key), situated=plan.situated, target=plan.target,
+        goals=plan.goals, safety=plan.safety, margin=plan.margin, is_goal=plan.is_goal,
+        robustness=plan.robustness,
+        p_indptr=p.indptr, p_indices=p.indices, p_shape=np.asarray(p.shape),
+        order=plan.order, stats=np.asarray(json.dumps(plan.stats))))
 
 
 def load_plan(path: str, key: str, terrain: Terrain, goal, templates: Templates,

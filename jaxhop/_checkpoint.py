@@ -14,6 +14,7 @@ import zipfile
 import jax
 import numpy as np
 
+from ._paths import atomic_write
 from ._plan import Plan
 from ._runloop import RUN_FIELDS
 
@@ -57,9 +58,4 @@ class ChunkStore:
 
     def save(self, start, stop, arrays):
         path = self._path(start, stop)
-        tmp = path + ".tmp"
-        with open(tmp, "wb") as f:
-            np.savez(f, **dict(zip(RUN_FIELDS, arrays)))
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
+        atomic_write(path, lambda f: np.savez(f, **dict(zip(RUN_FIELDS, arrays))), sync=True)

@@ -32,6 +32,8 @@ import jax
 import jax.export as jex
 import numpy as np
 
+from ._paths import atomic_write
+
 _typeof = getattr(jax, "typeof", None) or jax.core.get_aval
 _LIBS = ("jax", "jaxlib", "diffrax", "equinox", "optimistix", "lineax", "numpy")
 # The linear solves of optimistix / lineax lower to these on CPU (others are added from
@@ -131,22 +133,16 @@ def _load_or_export(name, key, flat, leaves, log):
     except Exception:  # noqa: BLE001 - no export (e.g. no flatbuffers): trace as usual
         return jax.jit(flat)
     if path is not None:
-        def write(tmp):
-            with open(tmp, "wb") as f:
-                f.write(blob)
-
-        _save(path, write, report)
+        _save(path, lambda f: f.write(blob), report)
     return jax.jit(exported.call)
 
 
 def _save(path: str, write, report) -> None:
-    """`write(tmp)` then an atomic rename to `path` (a reader never sees half a file); a
-    failure is reported, not raised."""
+    """`atomic_write(path, write)` into a folder made where missing; a failure is reported,
+    not raised."""
     try:
         os.makedirs(os.path.dirname(path), exist_ok=True)
-        tmp = f"{path}.{os.getpid()}.tmp"
-        write(tmp)
-        os.replace(tmp, path)
+        atomic_write(path, write)
     except OSError as err:
         report(f"cannot save {path}: {err.strerror}")
 
@@ -179,9 +175,5 @@ def stored_array(name: str, compute, inputs, log=None) -> np.ndarray:
             report(f"stored {path}: unreadable ({type(err).__name__}); computing it again")
     value = np.asarray(compute())
     if path is not None:
-        def write(tmp):
-            with open(tmp, "wb") as f:
-                np.save(f, value, allow_pickle=False)
-
-        _save(path, write, report)
+        _save(path, lambda f: np.save(f, value, allow_pickle=False), report)
     return value

@@ -36,7 +36,7 @@ import numpy as np
 
 from ._batching import pow2_at_least, run_once
 from ._params import Hopper
-from ._paths import cache_dir
+from ._paths import atomic_write, cache_dir
 from ._slip_deadbeat import (
     KAPPA_HI,
     KAPPA_LO,
@@ -173,10 +173,8 @@ def slip_table(grid: TableGrid = DEFAULT_GRID, cache: bool = True,
                     values = _read(path, key, shape)  # another process may have built it
                     if values is None:
                         values = build_table(grid, progress=progress)
-                        tmp = f"{path}.{os.getpid()}.tmp"
-                        with open(tmp, "wb") as f:
-                            np.savez(f, key=np.asarray(key), values=values)
-                        os.replace(tmp, path)
+                        atomic_write(path, lambda f: np.savez(f, key=np.asarray(key),
+                                                              values=values))
         table = SlipTable(jnp.asarray(values), grid)
         _LOADED[key] = table
         return table
