@@ -55,9 +55,9 @@ def device_name() -> str:
             f"load average {load:.1f} at start")
 
 
-def _plans(course, hop, tm, rebuild, cache_dir, log, align=True):
+def _plans(course, hop, tm, rebuild, cache_dir, log, align=True, model="bhop"):
     path = None
-    tag = "-lattice" if align else "-centred"
+    tag = ("-lattice" if align else "-centred") + ("" if model == "bhop" else f"-{model}")
     if cache_dir:
         os.makedirs(cache_dir, exist_ok=True)
         path = os.path.join(cache_dir, f"{course.name}{tag}-r{rebuild}.pkl")
@@ -136,28 +136,34 @@ def main(argv=None) -> int:
     for name in args.courses.split(","):
         course = load_course(name)
         if "reactive" in planners:
-            rebuild = 1 if (name in args.rebuild.split(",") and course.snapshots) else 0
-            t0 = time.perf_counter()
-            cps = _plans(course, hop, tm, rebuild, args.cache, log, args.align)
-            out["plans"].append({
-                "course": name, "n_snapshots": len(cps.plans) - 1,
-                "n_policies": [int(cp.stats["n_instantiated"]) for cp in cps.plans],
-                "full_s": cps.build_s, "update_s": cps.update_s,
-                "update_cpu_s": cps.update_cpu_s, "rebuild_s": cps.rebuild_s,
-                "rebuild_cpu_s": cps.rebuild_cpu_s, "rebuild_equal": cps.rebuild_equal,
-                "recomputed_pairs": [int(cp.stats["recomputed_pairs"]) for cp in cps.plans],
-                "stage_seconds": [cp.stats["stage_seconds"] for cp in cps.plans],
-                "seconds": time.perf_counter() - t0})
             for model in args.models.split(","):
-                noises = args.noise.split(",") if model == "bhop" else args.slip_noise.split(",")
-                runs = args.runs if model == "bhop" else args.slip_runs
+                # The SLIP runs on the leg's SLIP templates (`leg_templates(model="slip")`),
+                # whose plans are full builds at every snapshot.
+                slip = model != "bhop"
+                rebuild = 1 if (name in args.rebuild.split(",") and course.snapshots
+                                and not slip) else 0
+                tm_m = leg_templates(hop, model=model)
+                t0 = time.perf_counter()
+                cps = _plans(course, hop, tm_m, rebuild, args.cache, log, args.align, model)
+                out["plans"].append({
+                    "course": name, "model": model, "n_snapshots": len(cps.plans) - 1,
+                    "n_policies": [int(cp.stats["n_instantiated"]) for cp in cps.plans],
+                    "full_s": cps.build_s, "update_s": cps.update_s,
+                    "update_cpu_s": cps.update_cpu_s, "rebuild_s": cps.rebuild_s,
+                    "rebuild_cpu_s": cps.rebuild_cpu_s, "rebuild_equal": cps.rebuild_equal,
+                    "recomputed_pairs": [int(cp.stats.get("recomputed_pairs", 0))
+                                         for cp in cps.plans],
+                    "stage_seconds": [cp.stats["stage_seconds"] for cp in cps.plans],
+                    "seconds": time.perf_counter() - t0})
+                noises = args.slip_noise.split(",") if slip else args.noise.split(",")
+                runs = args.slip_runs if slip else args.runs
                 for controller in args.controllers.split(","):
                     for noise in noises:
                         if not noise:
                             continue
                         t0 = time.perf_counter()
                         r = reactive_parkour(course, model=model, noise=noise, seed=args.seed,
-                                             runs=runs, hopper=hop, templates=tm, plans=cps,
+                                             runs=runs, hopper=hop, templates=tm_m, plans=cps,
                                              controller=controller)
                         r.pop("executed")
                         r["seconds"] = time.perf_counter() - t0

@@ -18,7 +18,7 @@ from ._bhop import ascent, deadbeat_bhop, safe_sqrt, stance
 from ._errors import InputError
 from ._flight import COLLISION, OK, liftoff_clear, touchdown
 from ._observer import NU_MIN_SLIP, Observer, observe, slip_terms
-from ._params import Hopper
+from ._params import REFERENCE_HOPPER, Hopper
 from ._plan import PlanTables
 from ._policies import candidate_situated
 from ._regions import foot_lead
@@ -204,6 +204,8 @@ def decide_bhop(apex, tables: PlanTables, hopper: Hopper, wind=None, heights=Non
 # SLIP decisions (docs/decisions.md, "SLIP on BHop plans"): the deadbeat is tried on the
 # first SLIP_CANDIDATES matching policies in deployment order; the first whose predicted
 # apex lands within SLIP_ACCEPT of its goal wins, else the smallest scaled miss.
+# SLIP_ACCEPT and SLIP_STAGE_C2 are in the units of the reference hopper (80 kg, 1 m) and
+# are Froude-scaled to the hopper (`_slip_scales`).
 SLIP_CANDIDATES = 2
 SLIP_ACCEPT = (0.05, 0.05, 0.05)
 # A decision's deadbeat tries the table's further starts where the best one ends with a C2
@@ -211,6 +213,17 @@ SLIP_ACCEPT = (0.05, 0.05, 0.05)
 # multi-start solver only where the table has no start: where every table start misses, so
 # does the multi-start solver on nearly every target (docs/slip.md, "Deadbeat").
 SLIP_STAGE_C2 = 1e-4
+
+
+def _slip_scales(hopper: Hopper):
+    """`SLIP_ACCEPT` and `SLIP_STAGE_C2` for `hopper`: positions times `L = rho0 / 1 m`, the
+    speed times `V = sqrt(g rho0 / 9.81 m^2/s^2)`, C2 (m^2) times `L^2`; exactly the
+    constants for the reference hopper (traced: the hopper may be)."""
+    _, g0, l0 = REFERENCE_HOPPER
+    length = hopper.rho0 / l0
+    speed = jnp.sqrt((hopper.g / g0) * length)
+    scale = jnp.asarray(SLIP_ACCEPT) * jnp.stack([length, length, speed])
+    return scale, SLIP_STAGE_C2 * length**2
 
 
 def _first_accepted(one, goals, h, valid):
@@ -271,11 +284,11 @@ def decide_slip(apex, tables: PlanTables, hopper: Hopper, n_candidates: int = SL
 
     nt = tables.templates.n
     terrain = tables.terrain if heights is None else tables.terrain.with_heights(heights)
-    scale = jnp.asarray(SLIP_ACCEPT)
+    scale, stage_c2 = _slip_scales(hopper)
 
     def one(goal, h_):
         u, ok = deadbeat_slip(apex, goal, h_, hopper, terrain=terrain, wind=wind,
-                              table=tables.slip, fallback=False, accept=SLIP_STAGE_C2)
+                              table=tables.slip, fallback=False, accept=stage_c2)
         pred, code, _ = slip_stride(apex, u, terrain, hopper, 0.0 if wind is None else wind,
                                     SEARCH_TOL)
         miss = jnp.max(jnp.abs(pred - goal) / scale)

@@ -205,6 +205,27 @@ def test_incremental_update_gives_the_same_outcomes(small_plans):
     assert np.array_equal(a["steps"], b["steps"])
 
 
+@pytest.mark.slow
+def test_slip_course_tables_carry_the_slip_table_and_decide_as_the_plan_does(small_plans):
+    # A course's padded tables must give the SLIP the deadbeat's start table (without it
+    # every decision ran the multi-start solver, ten times slower on the leg), and padding
+    # must not change a decision: the same policy and controls as the plan's own tables.
+    from jaxhop._models import decide_slip
+
+    course, hop, cps, _ = small_plans
+    assert pad_plans(cps).tables[0].slip is None
+    padded = pad_plans(cps, "slip").tables[0]
+    own = cps.plans[0].plan.tables(slip=True)
+    assert padded.slip is not None and padded.goals.shape[0] > own.goals.shape[0]
+    apex0, _ = initial_states(cps, pad_plans(cps), 3, 2, hop)
+    decide = jax.jit(decide_slip)
+    for z in apex0:
+        f0, u0, a0 = decide(z, own, hop)
+        f1, u1, a1 = decide(z, padded, hop)
+        assert bool(f0) and bool(f1) and int(a0) == int(a1)
+        np.testing.assert_allclose(np.asarray(u1), np.asarray(u0), rtol=1e-12, atol=1e-12)
+
+
 def dataclass_replace(obj, **kw):
     import dataclasses
 

@@ -190,6 +190,35 @@ def test_a_reversing_stride_lifts_off_behind_its_foot():
     assert (dy[keep] > 0).any() and (dy[keep] < 0).any()
 
 
+def test_a_stride_moving_backward_before_and_after_never_moves_forward():
+    # Why the leg's SLIP templates keep only forward bands: the leg force points away from
+    # the foot, so the horizontal speed changes sign at most once in stance; a stride whose
+    # apex speeds are both backward moves backward all along, from apex to apex, whatever
+    # the foot placement (simulated strides, both directions of touchdown angle).
+    from jaxhop._slip import slip_apex_map
+    from jaxhop.parkour import leg_templates
+
+    rng = np.random.default_rng(8)
+    n = 3000
+    ydot = -rng.uniform(0.0, 1.0, n)
+    zr = rng.uniform(0.1, 0.8, n)
+    kc = rng.uniform(10.0, 60.0, n) * HOPPER.m * HOPPER.g
+    th = rng.uniform(-0.5, 0.5, n)
+    u = np.stack([th, kc, kc * np.exp(rng.uniform(np.log(0.5), np.log(2.0), n))], 1)
+    apex = np.stack([np.zeros(n), zr + 1.0, ydot], 1)
+    nxt, code = jax.jit(jax.vmap(lambda a, c: slip_apex_map(a, c, 0.0, HOPPER)))(apex, u)
+    nxt, code = np.asarray(nxt), np.asarray(code)
+    back = (code == 0) & (nxt[:, 1] > 1.0) & (nxt[:, 2] < 0)
+    assert back.sum() > 300
+    assert np.all(nxt[back, 0] < 0)
+    # The BHop plan's backward band asks for exactly such strides with a forward travel on
+    # the leg's narrow tops; the leg's SLIP templates have no backward band.
+    tm = leg_templates(model="slip")
+    rows = tm.as_array()
+    assert tm.slip is not None and np.all(rows[:, 0] >= 0) and tm.n == 12
+    assert np.any(leg_templates().as_array()[:, 0] < 0)
+
+
 @pytest.fixture(scope="module")
 def perceived_slip_plan():
     """The SLIP plan on the perceived map of `--noise ground` seed 0, and the true map."""
@@ -309,3 +338,72 @@ def test_a_sweeps_slip_domain_keeps_the_states_whose_first_stride_stays_in_the_d
                                             HOPPER)
     assert verified.tolist() == expected.tolist()
     assert verified.tolist() == [False, False, True, True, True]
+
+
+def _froude_tables(tables, hopper):
+    """`tables` of the reference hopper's plan, every length, speed and energy Froude-scaled
+    to `hopper`: the same plan for a hopper of another size."""
+    from jaxhop._params import froude_scales
+    from jaxhop._templates import scaled_templates
+
+    f = froude_scales(hopper)
+    length, speed = f["length"], f["velocity"]
+    t = tables.table
+    table = type(t)(t.centre * length, t.seg_block, t.edge_distance * length, t.block_first,
+                    t.block_count, t.block_left * length)
+    terrain = type(tables.terrain)(tables.terrain.starts * length, tables.terrain.ends * length,
+                                   tables.terrain.heights * length)
+    goals = tables.goals * jnp.array([length, length, speed])
+    return type(tables)(table, scaled_templates(hopper, base=tables.templates), terrain,
+                        tables.best_pos, tables.best_inst, goals, tables.slip)
+
+
+@pytest.mark.slow
+def test_a_slip_decision_for_a_small_leg_is_the_reference_decision_in_froude_units(
+        reference_slip_plan):
+    # Froude similarity: the same plan scaled to the MPPC leg (0.19 m, 8.0665 m/s^2, 1 kg)
+    # must choose the same policy from the scaled apex and, where the stride reaches the
+    # goal, the same touchdown angle and stiffnesses scaled by m g / rho0 (a goal out of
+    # reach gets C2's least-squares compromise, whose position and speed weights are not
+    # Froude-scaled). The acceptance of a candidate's predicted miss is part of it:
+    # unscaled (0.05 m on a 0.19 m leg) the leg accepts first candidates that miss by up to
+    # 26 % of its leg length, which the reference hopper rejects (5 %).
+    from jaxhop._execute import sweep_grid
+    from jaxhop._models import decide_slip, in_global_domain
+    from jaxhop._slip import slip_stride
+    from jaxhop._slip_deadbeat import SEARCH_TOL
+    from jaxhop.parkour import leg_hopper
+
+    leg = leg_hopper()
+    length, g_ratio = leg.rho0 / HOPPER.rho0, leg.g / HOPPER.g
+    speed = math.sqrt(g_ratio * length)
+    stiff = (leg.m * leg.g / leg.rho0) / (HOPPER.m * HOPPER.g / HOPPER.rho0)
+    tables = reference_slip_plan.tables(slip=True)
+    small = _froude_tables(tables, leg)
+    grid = sweep_grid(reference_slip_plan.terrain)
+    inside = grid[np.asarray(in_global_domain(grid, reference_slip_plan.tables(), HOPPER))]
+    states = inside[np.linspace(0, inside.shape[0] - 1, 24).round().astype(int)]
+    decide = jax.jit(lambda z, tb, hop: decide_slip(z, tb, hop, recover=True))
+    to_leg = np.array([length, length, speed])
+    reached = 0
+    for z in states:
+        f0, u0, a0, r0 = decide(jnp.asarray(z), tables, HOPPER)
+        f1, u1, a1, r1 = decide(jnp.asarray(z * to_leg), small, leg)
+        assert (bool(f0), int(a0), bool(r0)) == (bool(f1), int(a1), bool(r1)), z
+        pred, _, _ = slip_stride(jnp.asarray(z), u0, tables.terrain, HOPPER, 0.0, SEARCH_TOL)
+        if np.max(np.abs(np.asarray(pred) - np.asarray(tables.goals[a0]))) < 1e-4:
+            reached += 1
+            np.testing.assert_allclose(u1[0], u0[0], atol=1e-5)
+            np.testing.assert_allclose(u1[1:], u0[1:] * stiff, rtol=1e-4)
+    assert reached >= 4
+    # The twin scales its acceptance the same way; the reference hopper keeps the constants.
+    from jaxhop._models import SLIP_ACCEPT, SLIP_STAGE_C2, _slip_scales
+    from jaxhop.reference._execute import slip_scales
+
+    assert np.array_equal(np.asarray(_slip_scales(HOPPER)[0]), SLIP_ACCEPT)
+    assert float(_slip_scales(HOPPER)[1]) == SLIP_STAGE_C2
+    np.testing.assert_allclose(np.asarray(_slip_scales(leg)[0]),
+                               0.05 * np.array([length, length, speed]), rtol=1e-14)
+    np.testing.assert_allclose(slip_scales(leg)[0], np.asarray(_slip_scales(leg)[0]),
+                               rtol=1e-14)
+    assert slip_scales(leg)[1] == pytest.approx(1e-4 * length**2, rel=1e-14)

@@ -44,11 +44,11 @@ def reactive_parkour(course: Course, *, model: str = "bhop", noise: str = "none"
     `recoveries` counts the strides taken from a recovered apex (total and mean per run).
     """
     hopper = leg_hopper() if hopper is None else hopper
-    templates = leg_templates(hopper) if templates is None else templates
+    templates = leg_templates(hopper, model=model) if templates is None else templates
     cps = plans if plans is not None else course_plans(course, hopper, templates,
                                                        rebuild=rebuild, log=log,
                                                        align=align)
-    padded = pad_plans(cps)
+    padded = pad_plans(cps, model)
     apex0, coverage = initial_states(cps, padded, runs, seed, hopper)
     if apex0.shape[0] == 0:
         raise RuntimeError(f"{course.name}: the plan covers no initial state near the start")

@@ -197,16 +197,27 @@ def course_map(course: Course, env: Environment | None = None,
 LEG_EXTRA_ENERGY = ((1.43, 2.4),)
 
 
-def leg_templates(hopper: Hopper | None = None, extra_energy=LEG_EXTRA_ENERGY):
+def leg_templates(hopper: Hopper | None = None, extra_energy=LEG_EXTRA_ENERGY,
+                  model: str = "bhop"):
     """Froude-scaled templates for the MPPC leg (`scaled_templates`).
 
     The paper's set without its fast backward band (`RV = [-2.5, -1]`: a course is run
     forwards; `[-1, 0]` remains for stopping), plus `extra_energy` bands.
+
+    `model="slip"`: the forward bands only (`RV = [0, 1]` and `[1, 2.5]`, which hold
+    `ydot = 0` for stopping), with the SLIP adjustments of eqs 35-37 scaled to the hopper.
+    A BHop plan hops backwards on narrow tops to gather speed; a SLIP stride that starts
+    and ends moving backward never moves forward, so those routes ask for strides no SLIP
+    does (docs/parkour_reactive.md, "SLIP on the leg").
     """
+    from .._models import model_for
     from .._templates import make_templates, paper_templates, scaled_templates
 
     hopper = leg_hopper() if hopper is None else hopper
     paper = paper_templates()
     arr = paper.as_array()
-    base = make_templates(arr[arr[:, 1] > -1.0 + 1e-12], paper.seg_length)
-    return scaled_templates(hopper, extra_energy=extra_energy, base=base)
+    slip = model_for(model).name == "slip"
+    keep = arr[:, 0] >= -1e-12 if slip else arr[:, 1] > -1.0 + 1e-12
+    base = make_templates(arr[keep], paper.seg_length)
+    out = scaled_templates(hopper, extra_energy=extra_energy, base=base)
+    return out.for_slip(hopper=hopper) if slip else out

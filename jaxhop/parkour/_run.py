@@ -29,7 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._batching import bucket, pad_terrain, pad_to
-from .._models import decide, in_global_domain
+from .._models import decide, in_global_domain, model_for
 from .._params import NOISE_KINDS, Hopper, check_noise, disturbance_for
 from .._plan import PlanTables
 from .._policies import PairGrid, SituatedTable
@@ -154,8 +154,9 @@ def hold_tables(plan) -> tuple[np.ndarray, np.ndarray]:
     return hold_pos, best_inst
 
 
-def _pad_tables(cp: CoursePlan, n_blocks: int, n_seg: int, n_inst: int) -> PlanTables:
-    tb = cp.plan.tables()
+def _pad_tables(cp: CoursePlan, n_blocks: int, n_seg: int, n_inst: int,
+                slip: bool) -> PlanTables:
+    tb = cp.plan.tables(slip=slip)
     hold_pos, best_inst = hold_tables(cp.plan)
     t = tb.table
     nb, ns = t.block_first.shape[0], t.seg_block.shape[0]
@@ -170,7 +171,7 @@ def _pad_tables(cp: CoursePlan, n_blocks: int, n_seg: int, n_inst: int) -> PlanT
     big = jnp.iinfo(jnp.int32).max
     return PlanTables(table, tb.templates, pad_terrain(tb.terrain, n_blocks),
                       pad_to(tb.best_pos, k, big), pad_to(jnp.asarray(best_inst), k, 0),
-                      pad_to(tb.goals, n_inst, 0.0),
+                      pad_to(tb.goals, n_inst, 0.0), tb.slip,
                       hold_pos=pad_to(jnp.asarray(hold_pos), k, big))
 
 
@@ -233,12 +234,15 @@ class Padded:
     forbidden: list
 
 
-def pad_plans(cps: CoursePlans) -> Padded:
+def pad_plans(cps: CoursePlans, model: str = "bhop") -> Padded:
+    """Every plan's controller tables padded to one shape (one compiled run loop); for
+    `model="slip"` with the SLIP deadbeat's start table (`jaxhop._slip_table`)."""
+    slip = not model_for(model).instant_stance
     nb = bucket(max(m.true.n_blocks for m in cps.maps) + 1, 64)
     ns = bucket(max(cp.plan.stats["n_segments"] for cp in cps.plans), 256)
     ni = bucket(max(cp.plan.goals.shape[0] for cp in cps.plans), 65536)
     nf = bucket(max(m.forbidden_intervals().shape[0] for m in cps.maps), 32)
-    return Padded([_pad_tables(cp, nb, ns, ni) for cp in cps.plans],
+    return Padded([_pad_tables(cp, nb, ns, ni, slip) for cp in cps.plans],
                   [pad_terrain(m.true, nb) for m in cps.maps],
                   [_forbidden(m, nf) for m in cps.maps])
 

@@ -35,6 +35,13 @@ SLIP_ACCEPT = np.array([0.05, 0.05, 0.05])
 SLIP_STAGE_C2 = 1e-4  # jaxhop._models.SLIP_STAGE_C2
 
 
+def slip_scales(hopper):
+    """`SLIP_ACCEPT` and `SLIP_STAGE_C2` Froude-scaled to `hopper` (`_models._slip_scales`)."""
+    length = hopper.rho0 / 1.0
+    speed = np.sqrt((hopper.g / 9.81) * length)
+    return SLIP_ACCEPT * np.array([length, length, speed]), SLIP_STAGE_C2 * length**2
+
+
 class Controller:
     """The execution lookup of a plan: the first deployed policy of every situated policy.
 
@@ -129,6 +136,7 @@ class Controller:
             return False, None, -1, -1, False
         sit = self.plan.situation
         sits = [int(ids[k]) for k in order]
+        scale, stage_c2 = slip_scales(self.plan.situation.hopper)
         insts = [int(self.best_inst[k]) for k in sits]
         hs = [sit.segs.centre[k // sit.templates.n, 1] for k in sits]
 
@@ -138,7 +146,7 @@ class Controller:
             pred, code, _ = slip_stride(apex, u, sit.terrain, sit.hopper, 0.0, SEARCH_RTOL,
                                        SEARCH_ATOL)
             ok = code == OK and np.all(np.isfinite(pred))
-            miss = float(np.max(np.abs(pred - goal) / SLIP_ACCEPT)) if ok else np.inf
+            miss = float(np.max(np.abs(pred - goal) / scale)) if ok else np.inf
             return u, miss, pred
 
         if self.slip_table is None:
@@ -150,7 +158,7 @@ class Controller:
             us, misses, preds = [np.zeros(3)] * n, [np.inf] * n, [None] * n
             for c in range(len(order)):
                 us[c], misses[c], preds[c] = one(c, table=self.slip_table, fallback=False,
-                                                 accept=SLIP_STAGE_C2)
+                                                 accept=stage_c2)
                 if misses[c] <= 1.0:
                     break
         misses = np.asarray(misses)
@@ -161,7 +169,7 @@ class Controller:
         stuck = False
         if not good.any() and np.isfinite(misses[pick]):
             goal = self.plan.goals[insts[pick]]
-            away = np.max(np.abs(apex - goal) / SLIP_ACCEPT) <= misses[pick]
+            away = np.max(np.abs(apex - goal) / scale) <= misses[pick]
             found_next, sit_next, _ = self.first_match(preds[pick])
             stuck = bool(away and found_next and sit_next == sits[pick])
         return True, us[pick], insts[pick], sits[pick], stuck
