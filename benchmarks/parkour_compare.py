@@ -151,7 +151,7 @@ def main(argv=None) -> int:
                     "full_s": cps.build_s, "update_s": cps.update_s,
                     "update_cpu_s": cps.update_cpu_s, "rebuild_s": cps.rebuild_s,
                     "rebuild_cpu_s": cps.rebuild_cpu_s, "rebuild_equal": cps.rebuild_equal,
-                    "recomputed_pairs": [int(cp.stats.get("recomputed_pairs", 0))
+                    "recomputed_pairs": [int(cp.stats["recomputed_pairs"])
                                          for cp in cps.plans],
                     "stage_seconds": [cp.stats["stage_seconds"] for cp in cps.plans],
                     "seconds": time.perf_counter() - t0})

@@ -216,7 +216,7 @@ def leg_templates(hopper: Hopper | None = None, extra_energy=LEG_EXTRA_ENERGY,
     hopper = leg_hopper() if hopper is None else hopper
     paper = paper_templates()
     arr = paper.as_array()
-    slip = model_for(model).name == "slip"
+    slip = not model_for(model).instant_stance
     keep = arr[:, 0] >= -1e-12 if slip else arr[:, 1] > -1.0 + 1e-12
     base = make_templates(arr[keep], paper.seg_length)
     out = scaled_templates(hopper, extra_energy=extra_energy, base=base)

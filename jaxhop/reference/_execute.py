@@ -20,6 +20,7 @@ from ._model import (
     RUNNING,
     SOLVER,
     SUCCESS,
+    Hopper,
     Terrain,
     bhop_stride,
     deadbeat_bhop,
@@ -36,9 +37,11 @@ SLIP_STAGE_C2 = 1e-4  # jaxhop._models.SLIP_STAGE_C2
 
 
 def slip_scales(hopper):
-    """`SLIP_ACCEPT` and `SLIP_STAGE_C2` Froude-scaled to `hopper` (`_models._slip_scales`)."""
-    length = hopper.rho0 / 1.0
-    speed = np.sqrt((hopper.g / 9.81) * length)
+    """`SLIP_ACCEPT` and `SLIP_STAGE_C2` Froude-scaled from the reference `Hopper()` to
+    `hopper` (`_models._slip_scales`)."""
+    ref = Hopper()
+    length = hopper.rho0 / ref.rho0
+    speed = np.sqrt((hopper.g / ref.g) * length)
     return SLIP_ACCEPT * np.array([length, length, speed]), SLIP_STAGE_C2 * length**2
 
 
