@@ -73,7 +73,7 @@ def run_batch(plan: Plan, apex0, *, key=None, true_terrain: Terrain | None = Non
     chunks in flight.
 
     With `pool` (the default for `model="slip"`), the runs go through a pool of
-    `POOL_LANES` lanes per device instead, refilled between strides (`jaxhop._pool`): no run
+    `pool_lanes()` lanes per device instead, refilled between strides (`jaxhop._pool`): no run
     waits for a longer one. Chunks then only set what is checkpointed and what each
     `jax.distributed` process runs; results are the same run for run.
 

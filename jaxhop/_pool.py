@@ -8,11 +8,15 @@ steps `POOL_LANES` runs by one stride (`run_step`, vmapped), the host retires th
 that ended and puts the next ones in their lanes (one host thread per device, each with
 its own share of the runs). Lanes with nothing to run repeat a live run of their device
 (same cost, results discarded). The lane count is fixed, so one compilation per device
-serves every sweep.
+serves every sweep: `POOL_LANES` on a CPU, where lanes share a core; `ACCELERATOR_LANES`
+on a GPU or TPU, where a step costs about the same for one lane as for thousands (its
+time is the chain of small solver steps, not the arithmetic); `$JAXHOP_POOL_LANES`
+overrides both.
 """
 
 from __future__ import annotations
 
+import os
 import threading
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
@@ -25,6 +29,19 @@ from ._programs import stored_program
 from ._runloop import RunConfig, World, run_init, run_live, run_result, run_step
 
 POOL_LANES = 32
+ACCELERATOR_LANES = 4096
+
+
+def pool_lanes(device=None) -> int:
+    """Lanes per device: `$JAXHOP_POOL_LANES`, else by the device's platform."""
+    env = os.environ.get("JAXHOP_POOL_LANES")
+    if env:
+        lanes = int(env) if env.strip().isdigit() else 0
+        if lanes < 1:
+            raise ValueError(f"JAXHOP_POOL_LANES must be a positive integer, got {env!r}")
+        return lanes
+    device = device or jax.local_devices()[0]
+    return POOL_LANES if device.platform == "cpu" else ACCELERATOR_LANES
 
 
 def _pool_step(carry, fresh, apex0, index, key, tables, true_terrain, hopper, disturbance,
@@ -48,7 +65,7 @@ def _lane_batch(pick, treedef, dev):
     return jax.tree_util.tree_unflatten(treedef, jax.device_put(batch, dev)), index, fresh
 
 
-def pool_runs(runs, apex0, key, consts, config: RunConfig, on_done, lanes=POOL_LANES,
+def pool_runs(runs, apex0, key, consts, config: RunConfig, on_done, lanes=None,
               strides: int | None = None):
     """Run `runs` (indices into `apex0`) through the pool; `on_done(run, fields)` is called
     as each ends, with `fields` in `RUN_FIELDS` order. `consts` are `(tables, true_terrain,
@@ -64,6 +81,7 @@ def pool_runs(runs, apex0, key, consts, config: RunConfig, on_done, lanes=POOL_L
     """
     if not runs:
         return
+    lanes = pool_lanes() if lanes is None else lanes
     # Placeholder leaves for a lane whose run starts in the next step (`fresh`).
     blank, treedef = jax.tree_util.tree_flatten(jax.device_get(run_init(jnp.zeros(3), config)))
     devices = jax.local_devices()

@@ -50,3 +50,26 @@ def test_runs_are_dealt_to_devices_in_a_fixed_order(tmp_path):
     for dev in steps_a:  # the same lanes, step for step, on each device
         assert steps_a[dev] == steps_b[dev]
     assert apexes_a == apexes_b and n_a == n_b
+
+
+class _Device:
+    def __init__(self, platform):
+        self.platform = platform
+
+
+def test_lane_count_follows_the_platform_and_the_override(monkeypatch):
+    from jaxhop import _pool
+
+    monkeypatch.delenv("JAXHOP_POOL_LANES", raising=False)
+    assert _pool.pool_lanes(_Device("cpu")) == 32
+    assert _pool.pool_lanes(_Device("gpu")) == 4096
+    monkeypatch.setenv("JAXHOP_POOL_LANES", "64")
+    assert _pool.pool_lanes(_Device("gpu")) == 64
+    for bad in ("0", "-3", "many"):
+        monkeypatch.setenv("JAXHOP_POOL_LANES", bad)
+        try:
+            _pool.pool_lanes(_Device("cpu"))
+        except ValueError as err:
+            assert "JAXHOP_POOL_LANES" in str(err)
+        else:
+            raise AssertionError(f"{bad!r} was accepted")
