@@ -369,7 +369,7 @@ class Model(eqx.Module):
         """The foot relative to the COM in flight with controls `u`."""
         raise NotImplementedError
 
-    def observe(self, obs: Observer, measured, sensor, hopper: Hopper) -> Observer:
+    def observe(self, obs: Observer, measured, sensor, hopper: Hopper, landing=0.0) -> Observer:
         """The observer's update with the apex measured after its pending stride."""
         raise NotImplementedError
 
@@ -387,8 +387,8 @@ class _BHop(Model):
     def foot_offset(self, u, hopper):
         return jnp.array([0.0, -hopper.rho0])
 
-    def observe(self, obs, measured, sensor, hopper):
-        return observe(obs, measured, sensor, hopper)
+    def observe(self, obs, measured, sensor, hopper, landing=0.0):
+        return observe(obs, measured, sensor, hopper, landing=landing)
 
 
 class _Slip(Model):
@@ -407,8 +407,8 @@ class _Slip(Model):
     def foot_offset(self, u, hopper):
         return hopper.rho0 * jnp.stack([jnp.sin(u[0]), -jnp.cos(u[0])])
 
-    def observe(self, obs, measured, sensor, hopper):
-        return observe(obs, measured, sensor, hopper, slip_terms, NU_MIN_SLIP)
+    def observe(self, obs, measured, sensor, hopper, landing=0.0):
+        return observe(obs, measured, sensor, hopper, slip_terms, NU_MIN_SLIP, landing)
 
 
 # SLIP strides cost a deadbeat solve per lane and run lengths vary more (a vmapped while loop

@@ -18,6 +18,14 @@ estimated online from those prediction errors with a scalar Kalman filter
 - process noise `Q` per stride: small, the wind is modelled as constant (a slow drift is
   still followed).
 
+The same predictions give the controller a filtered apex to decide on (an extended
+Kalman filter of the apex state; `docs/decisions.md`, "Apex filter"): the predicted apex
+`pred` with the new wind estimate, its covariance `J P J^T + H H^T var_a + Q` (`Q`: the
+landing error's variance on `y`, else model rounding), fused with the measurement of
+variance `w^2 / 3` per axis. Without sensor noise the estimate is the measurement,
+bit for bit; a run's first apex, and the one after a stride that did not complete, start
+the filter again from the measurement.
+
 State per run (`Observer`), reset per run, one sample at a time (vmapped by the drivers).
 """
 
@@ -39,6 +47,8 @@ PRIOR_VAR = 1.0
 PROCESS_VAR = 1e-6
 #: Floor of the measurement variance (m/s)^2 (model rounding when there is no sensor noise).
 R_MIN = 1e-12
+#: Floor of the apex prediction's variance, m^2 and (m/s)^2 (model rounding).
+Q_MIN = 1e-10
 #: Innovations below this (m/s) are rounding, not wind: the filter skips them, so an
 #: undisturbed run keeps an estimate of exactly 0. The SLIP's floor is its integration
 #: noise: the prediction is a second diffrax solve of the executed stride (rtol 1e-10),
@@ -48,8 +58,9 @@ NU_MIN_SLIP = 1e-7
 
 
 class Observer(NamedTuple):
-    """The observer of one run: the estimate `wind` (m/s^2) and its variance `var`, and the
-    stride awaiting its measured apex (`pending`): the measured apex it started from, its
+    """The observer of one run: the estimate `wind` (m/s^2) and its variance `var`; the
+    filtered apex `estimate` the controller decides on and its covariance `est_var`; the
+    stride awaiting its measured apex (`pending`): the apex estimate it started from, its
     controls, the sensed foothold height and the stance's target energy (NaN: none)."""
 
     wind: jnp.ndarray
@@ -59,26 +70,23 @@ class Observer(NamedTuple):
     h: jnp.ndarray
     pending: jnp.ndarray
     energy: jnp.ndarray
+    estimate: jnp.ndarray
+    est_var: jnp.ndarray
 
 
 def observer_init() -> Observer:
     """No wind known, nothing pending."""
     z = jnp.zeros(3)
     return Observer(jnp.asarray(0.0), jnp.asarray(PRIOR_VAR), z, z, jnp.asarray(0.0),
-                    jnp.asarray(False), jnp.asarray(jnp.nan))
-
-
-def predicted_ydot(apex, u, h, hopper: Hopper, wind):
-    """The horizontal apex velocity the BHop stride from `apex` with `u` reaches."""
-    return bhop_apex_map(apex, u, h, hopper, wind)[2]
+                    jnp.asarray(False), jnp.asarray(jnp.nan), z, jnp.zeros((3, 3)))
 
 
 def bhop_terms(obs: Observer, hopper: Hopper):
-    """`(pred, H, J)` of the pending BHop stride: the predicted horizontal apex velocity,
-    its derivatives in the wind and in the measured apex it started from."""
-    f = lambda a, z: predicted_ydot(z, obs.u, obs.h, hopper, a)  # noqa: E731
+    """`(pred, H, J)` of the pending BHop stride: the predicted apex, its derivatives in
+    the wind `(3,)` and in the apex it started from `(3, 3)`."""
+    f = lambda a, z: bhop_apex_map(z, obs.u, obs.h, hopper, a)  # noqa: E731
     pred, h_wind = jax.jvp(lambda a: f(a, obs.apex), (obs.wind,), (jnp.ones_like(obs.wind),))
-    return pred, h_wind, jax.grad(lambda z: f(obs.wind, z))(obs.apex)
+    return pred, h_wind, jax.jacfwd(lambda z: f(obs.wind, z))(obs.apex)
 
 
 def slip_terms(obs: Observer, hopper: Hopper):
@@ -90,30 +98,51 @@ def slip_terms(obs: Observer, hopper: Hopper):
 
     def f(x):
         nxt, _ = slip_apex_map(x[1:], obs.u, obs.h, hopper, tol, x[0], obs.energy)
-        return nxt[2]
+        return nxt
 
     x = jnp.concatenate([obs.wind[None], obs.apex])
     jac = jax.jacfwd(f)(x)
-    return f(x), jac[0], jac[1:]
+    return f(x), jac[:, 0], jac[:, 1:]
 
 
 def observe(obs: Observer, measured, sensor, hopper: Hopper, terms=bhop_terms,
-            nu_min=NU_MIN) -> Observer:
+            nu_min=NU_MIN, landing=0.0) -> Observer:
     """The Kalman update with the apex measured after the pending stride (none pending, or
-    an innovation below `nu_min`: the estimate is kept).
+    an innovation below `nu_min`: the estimate is kept), then the apex estimate (`fuse`).
 
     `sensor`: the half-widths of the uniform apex noise `(y, z, ydot)`. `terms`: the
-    model's prediction, `bhop_terms` or `slip_terms`.
+    model's prediction, `bhop_terms` or `slip_terms`. `landing`: the half-width of the
+    landing error on `y` (0: none).
     """
     pred, h_wind, jac = terms(obs, hopper)
-    r = (sensor[2] ** 2 + jnp.sum((jac * sensor) ** 2)) / 3.0 + R_MIN
+    # The new apex carries w_v; the apex the prediction started from carries est_var.
+    r = sensor[2] ** 2 / 3.0 + jac[2] @ obs.est_var @ jac[2] + R_MIN
     p = obs.var + PROCESS_VAR
-    nu = measured[2] - pred
-    gain = p * h_wind / (h_wind**2 * p + r)
+    nu = measured[2] - pred[2]
+    gain = p * h_wind[2] / (h_wind[2] ** 2 * p + r)
     use = obs.pending & (jnp.abs(nu) >= nu_min) & jnp.isfinite(nu) & jnp.isfinite(gain)
     wind = jnp.where(use, obs.wind + gain * nu, obs.wind)
-    var = jnp.where(use, (1.0 - gain * h_wind) * p, obs.var)
-    return obs._replace(wind=wind, var=var, pending=jnp.asarray(False))
+    var = jnp.where(use, (1.0 - gain * h_wind[2]) * p, obs.var)
+    estimate, est_var = fuse(obs, measured, sensor, pred + h_wind * (wind - obs.wind),
+                             h_wind, jac, var, landing)
+    return obs._replace(wind=wind, var=var, pending=jnp.asarray(False), estimate=estimate,
+                        est_var=est_var)
+
+
+def fuse(obs: Observer, measured, sensor, pred, h_wind, jac, wind_var, landing=0.0):
+    """`(estimate, covariance)` of the apex: the prediction `pred` of the pending stride
+    fused with the measurement (the Kalman gain of the linearised stride). No sensor noise,
+    nothing pending or a non-finite prediction: the measurement itself."""
+    r = jnp.asarray(sensor, float) ** 2 / 3.0
+    q = jnp.zeros(3).at[0].set(jnp.asarray(landing, float) ** 2 / 3.0) + Q_MIN
+    p = jac @ obs.est_var @ jac.T + wind_var * jnp.outer(h_wind, h_wind) + jnp.diag(q)
+    gain = jnp.linalg.solve(p + jnp.diag(r), p).T  # P S^-1, with P and S symmetric
+    est = pred + gain @ (measured - pred)
+    cov = (jnp.eye(3) - gain) @ p
+    cov = 0.5 * (cov + cov.T)
+    use = (obs.pending & jnp.any(r > 0) & jnp.all(jnp.isfinite(est))
+           & jnp.all(jnp.isfinite(cov)))
+    return jnp.where(use, est, measured), jnp.where(use, cov, jnp.diag(r))
 
 
 #: The leg of a spring-leg (SLIP) hopper is placed in flight: its controller measures the
@@ -139,7 +168,8 @@ def observe_descent(obs: Observer, measured_ydot, ydot_descent, t, sensor) -> Ob
 
 def after_stride(obs: Observer, measured, u, h, completed, energy=None) -> Observer:
     """Record a stride for the next update (only a completed stride is compared).
-    `energy`: the target energy its stance used (`None`: none)."""
+    `measured`: the apex estimate the stride was decided on. `energy`: the target energy
+    its stance used (`None`: none)."""
     energy = jnp.asarray(jnp.nan if energy is None else energy, float)
     return obs._replace(apex=measured, u=u, h=jnp.asarray(h, float),
                         pending=jnp.asarray(completed), energy=energy)

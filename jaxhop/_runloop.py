@@ -180,25 +180,31 @@ def _decide_adaptive(measured, true_apex, world: World, config: RunConfig, contr
                      key):
     """The adaptive decision: observer update, deadbeat with the estimated wind on the map
     corrected by the sensed footholds (an instantaneous stance with the foothold sensed at
-    its touchdown), recovery. `key`: the draw of a measurement in the descent (SLIP).
-    Returns `(found, u, a, recovered, control, heights)`."""
+    its touchdown), recovery, all on the observer's filtered apex. `key`: the draw of a
+    measurement in the descent (SLIP). Returns `(found, u, a, recovered, control, heights,
+    state)`: `state`, the apex decided on."""
     obs = control.observer
     model = config.model
     on = config.adaptive_on
+    dist = world.disturbance
+    state = measured
     if model.observes:
-        obs = model.observe(obs, measured, world.disturbance.sensor, world.hopper)
+        obs = model.observe(obs, measured, dist.sensor, world.hopper,
+                            dist.landing if config.landing else 0.0)
+        state = obs.estimate
     heights = corrected_heights(control.footholds, world.tables.terrain)
     if model.observes and not model.instant_stance:
         obs = _descent_measurement(obs, measured, true_apex, heights, key, world)
     if on is not None:  # switched off: the paper's controller (map, no wind, no recovery)
         obs = jax.tree.map(lambda new, old: jnp.where(on, new, old), obs, control.observer)
         heights = jnp.where(on, heights, world.tables.terrain.heights)
+        state = jnp.where(on, state, measured)
     h_touch = jnp.asarray(jnp.nan)
     if model.instant_stance:
         landed, foot = sensed_foothold(true_apex, model.foot_offset(None, world.hopper),
                                        world.terrain, world.hopper, world.disturbance.wind)
         h_touch = jnp.where(landed, foot[1], jnp.nan)
-    found, u, a, recovered = model.decide_adaptive(measured, world.tables, world.hopper,
+    found, u, a, recovered = model.decide_adaptive(state, world.tables, world.hopper,
                                                    obs.wind if model.observes else None,
                                                    heights, h_touch, on)
     if on is not None:
@@ -206,7 +212,8 @@ def _decide_adaptive(measured, true_apex, world: World, config: RunConfig, contr
         recovered = recovered & on
     streak = jnp.where(recovered, control.streak + 1, 0).astype(jnp.int32)
     found = found & (streak <= RECOVERY_STREAK)
-    return found, u, a, recovered, control._replace(observer=obs, streak=streak), heights
+    return (found, u, a, recovered, control._replace(observer=obs, streak=streak), heights,
+            state)
 
 
 def _stance_energy(true_apex, u, a, heights, world: World, config: RunConfig, adaptive,
@@ -257,7 +264,7 @@ def step(apex, key, k, world: World, config: RunConfig, controller=None,
     heights = world.tables.terrain.heights
     if adaptive:
         descent_key = jax.random.fold_in(jax.random.fold_in(key, k), 1)
-        found, u, a, recovered, control, heights = _decide_adaptive(
+        found, u, a, recovered, control, heights, measured = _decide_adaptive(
             measured, true_apex, world, config, control, descent_key)
     elif controller is None:
         found, u, a = config.model.decide(measured, world.tables, world.hopper)

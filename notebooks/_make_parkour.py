@@ -133,8 +133,48 @@ ax.plot([j["x1"] for j in m["executed"]], [j["z1"] for j in m["executed"]], "m^"
         label="MPPC: landings")
 ax.legend(loc="upper right")
 ax.set(xlabel="y (m)", ylabel="z (m)")'''),
-    ("md", """The full comparison over all nine courses, with timings, is
-`benchmarks/parkour_compare.py`; its table is in `benchmarks/README.md`."""),
+    ("md", """## Measured on all nine courses
+
+`benchmarks/parkour_compare.py` runs every course, 12 seeded runs per cell; its results
+are stored in `benchmarks/results/` (the device and load are named in each file, timings
+in `benchmarks/README.md`). Reactive BHop with the adaptive controller and with the
+paper's, reactive SLIP on the leg's SLIP templates (adaptive), and MPPC with its
+observer; the success rate per course and disturbance:"""),
+    ("code", '''import json
+import pathlib
+
+RESULTS = pathlib.Path("..") / "benchmarks" / "results"
+files = ["cpu2-parkour-controllers-2026-11.json", "cpu2-parkour-slip-leg-2026-11.json",
+         "cpu2-parkour-mppc-observer-2026-11.json"]
+success = {}
+for name in files:
+    for r in json.loads((RESULTS / name).read_text())["rows"]:
+        model = {"bhop": "BHop", "slip": "SLIP"}.get(r["model"], r["model"])
+        who = "MPPC" if r["planner"] == "mppc" else f"{model} {r['controller']}"
+        success[(who, r["noise"], r["course"])] = r["success_rate"]
+planners = ["BHop adaptive", "BHop paper", "SLIP adaptive", "MPPC"]
+noises = ["none", "wind", "sensor", "landing"]
+courses = sorted({c for _, _, c in success})
+head = f"mean of the {len(courses)} courses"
+print(f"{head:22s}" + "".join(f"{n:>9s}" for n in noises))
+for who in planners:
+    means = [np.mean([success[(who, n, c)] for c in courses]) if all(
+        (who, n, c) in success for c in courses) else np.nan for n in noises]
+    print(f"{who:22s}" + "".join(f"{m:9.2f}" if np.isfinite(m) else f"{'-':>9s}" for m in means))
+
+fig, axes = plt.subplots(1, len(noises), figsize=(13, 3.6), sharey=True)
+for ax, n in zip(axes, noises):
+    for i, who in enumerate(planners):
+        vals = [success.get((who, n, c), np.nan) for c in courses]
+        ax.bar(np.arange(len(courses)) + 0.2 * (i - 1.5), vals, 0.2,
+               label=who if n == noises[0] else None)
+    ax.set(title=n, xticks=range(len(courses)), ylim=(0, 1.05))
+    ax.set_xticklabels([c.replace("mppc-", "") for c in courses], rotation=70, fontsize=7)
+axes[0].set_ylabel("success")
+fig.legend(loc="upper center", ncol=len(planners), fontsize=8)
+fig.tight_layout(rect=(0, 0, 1, 0.9))'''),
+    ("md", """A dash: not measured (the SLIP leg under disturbances). Reading the table and
+the causes of each failure: `benchmarks/README.md` and `docs/parkour_reactive.md`."""),
 ]
 
 

@@ -236,3 +236,47 @@ def test_descent_measurement_gives_the_wind_before_the_first_touchdown():
                                * 0.05 / 0.2, rtol=1e-6)
     # No descent to measure in: the estimate is kept.
     assert float(observe_descent(learnt, 0.5, 9.0, 0.0, jnp.zeros(3)).wind) == -0.2
+
+
+def _filter_loop(wind, sensor, n, seed):
+    """`_stride_loop`, deciding on the observer's filtered apex as the run loop does;
+    returns the true apexes, the measurements, the estimates and their covariances."""
+    rng = np.random.default_rng(seed)
+    sensor = jnp.asarray(sensor, float)
+    obs = observer_init()
+    apex = jnp.array([0.0, 1.6, 0.5])
+    upd, stride = jax.jit(observe), jax.jit(bhop_stride)
+    rows = []
+    for _ in range(n):
+        measured = apex + jnp.asarray(rng.uniform(-1, 1, 3)) * sensor
+        obs = upd(obs, measured, sensor, HOP)
+        rows.append((apex, measured, obs.estimate, obs.est_var))
+        goal = jnp.array([obs.estimate[0] + 0.5, 1.6, 0.5])
+        u = deadbeat_bhop(obs.estimate, goal, 0.0, HOP, obs.wind)
+        nxt, code, foot = stride(apex, u, FLOOR, HOP, wind)
+        assert int(code) == OK
+        obs = after_stride(obs, obs.estimate, u, foot[1], True)
+        apex = nxt
+    return [np.asarray(x) for x in zip(*rows)]
+
+
+@pytest.mark.parametrize("wind", [0.0, -0.2])
+def test_apex_filter_beats_the_raw_measurement(wind):
+    # Uniform noise of half-width 0.05 has a standard deviation of 0.0289 per axis; the
+    # filter, which knows the stride's dynamics, must do clearly better on every axis
+    # once it has a few strides behind it, and its covariance must describe its errors
+    # (never overconfident by more than 2x, nor cautious by more than 3x).
+    true, meas, est, cov = _filter_loop(wind, (0.05, 0.05, 0.05), 60, 4)
+    raw = np.sqrt(np.mean((meas[10:] - true[10:]) ** 2, axis=0))
+    filt = np.sqrt(np.mean((est[10:] - true[10:]) ** 2, axis=0))
+    assert np.all(np.abs(raw - 0.05 / np.sqrt(3)) < 0.01)
+    assert np.all(filt < 0.75 * raw), (filt, raw)
+    stated = np.sqrt(np.mean(np.diagonal(cov[10:], axis1=1, axis2=2), axis=0))
+    assert np.all((stated > filt / 2) & (stated < 3 * filt)), (stated, filt)
+    # The first apex has nothing to fuse: it is the measurement.
+    assert np.array_equal(est[0], meas[0])
+
+
+def test_apex_filter_is_the_measurement_without_sensor_noise():
+    true, meas, est, _ = _filter_loop(-0.2, (0.0, 0.0, 0.0), 8, 0)
+    assert np.array_equal(est, meas) and np.array_equal(meas, true)
