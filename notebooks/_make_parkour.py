@@ -173,8 +173,8 @@ for ax, n in zip(axes, noises):
 axes[0].set_ylabel("success")
 fig.legend(loc="upper center", ncol=len(planners), fontsize=8)
 fig.tight_layout(rect=(0, 0, 1, 0.9))'''),
-    ("md", """A dash: not measured (the SLIP leg under disturbances). Reading the table and
-the causes of each failure: `benchmarks/README.md` and `docs/parkour_reactive.md`."""),
+    ("md", """A dash: a cell not measured on every course. Reading the table and the causes
+of each failure: `benchmarks/README.md` and `docs/parkour_reactive.md`."""),
 ]
 
 
