@@ -4,7 +4,7 @@ lane pool instead of vmapped chunks").
 A vmapped while loop runs until the longest run of its chunk ends: with SLIP strides (a
 deadbeat solve each) a chunk holding one run that loops to max_steps costs 60 strides per
 lane where most runs need about 12. So SLIP runs go through a pool instead: every device
-steps `POOL_LANES` runs by one stride (`run_step`, vmapped), the host retires the runs
+steps `pool_lanes()` runs by one stride (`run_step`, vmapped), the host retires the runs
 that ended and puts the next ones in their lanes (one host thread per device, each with
 its own share of the runs). Lanes with nothing to run repeat a live run of their device
 (same cost, results discarded). The lane count is fixed, so one compilation per device

@@ -264,7 +264,7 @@ def step(apex, key, k, world: World, config: RunConfig, controller=None,
     heights = world.tables.terrain.heights
     if adaptive:
         descent_key = jax.random.fold_in(jax.random.fold_in(key, k), 1)
-        found, u, a, recovered, control, heights, measured = _decide_adaptive(
+        found, u, a, recovered, control, heights, decided_on = _decide_adaptive(
             measured, true_apex, world, config, control, descent_key)
     elif controller is None:
         found, u, a = config.model.decide(measured, world.tables, world.hopper)
@@ -283,7 +283,7 @@ def step(apex, key, k, world: World, config: RunConfig, controller=None,
     if adaptive:
         # The foothold's height is sensed at touchdown (leg geometry).
         control = control._replace(
-            observer=after_stride(control.observer, measured, u, foot[1], ok, energy),
+            observer=after_stride(control.observer, decided_on, u, foot[1], ok, energy),
             recoveries=control.recoveries + (stepping & recovered).astype(jnp.int32),
             footholds=remember(control.footholds, foot, ok, k))
     return Step(code, stepping, ok, nxt, foot, a, control)
