@@ -16,6 +16,8 @@ interval.
 
 from __future__ import annotations
 
+import dataclasses
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -341,6 +343,12 @@ def goal_policy_margin(goal, ti, seg_i, table: SituatedTable, templates: Templat
     (docs/decisions.md, "Goals on segment boundaries").
     """
     tmpl = templates.row(ti)
+    if tmpl.slip is not None and tmpl.slip.keep_direction:
+        # A run ends within the goal tolerance, and a SLIP stride cannot stop on the spot:
+        # the last strides creep onto a goal at rest from either side of it, so goal
+        # policies keep eq 35's limits (docs/decisions.md, "Direction rule").
+        tmpl = dataclasses.replace(
+            tmpl, slip=dataclasses.replace(tmpl.slip, keep_direction=False))
     py, h = table.centre[seg_i, 0], table.centre[seg_i, 1]
     b = table.seg_block[seg_i]
 

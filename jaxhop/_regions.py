@@ -49,6 +49,14 @@ def slip_shift_limits(ydot, tmpl: Templates):
         # backward motion lifts off behind its foot, and vice versa (docs/decisions.md).
         hi = jnp.where((ydot < 0) & (tmpl.v_hi > 0), jnp.minimum(hi, 0.0), hi)
         lo = jnp.where((ydot > 0) & (tmpl.v_lo < 0), jnp.maximum(lo, 0.0), lo)
+    if tmpl.slip.keep_direction:
+        # A stance that starts and ends moving forward moves forward all along, so it lifts
+        # off ahead of the COM's touchdown point, the foot lead `Y` behind the planned foot;
+        # mirrored for backward strides (docs/decisions.md, "Direction rule").
+        lo = jnp.where((ydot >= 0) & (tmpl.v_lo >= 0),
+                       jnp.maximum(lo, -tmpl.slip.lead(tmpl.v_lo)), lo)
+        hi = jnp.where((ydot <= 0) & (tmpl.v_hi <= 0),
+                       jnp.minimum(hi, -tmpl.slip.lead(tmpl.v_hi)), hi)
     return lo, hi
 
 

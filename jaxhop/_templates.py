@@ -50,6 +50,10 @@ class SlipAdjust:
         reversal: also forbid a shift past the foot for strides that reverse direction
             (forward to backward: `dy <= 0`; backward to forward: `dy >= 0`), which no
             SLIP stance can do (`slip_shift_limits`; docs/decisions.md, "Reversal rule").
+        keep_direction: also forbid, for strides that keep their direction, a goal behind
+            the COM's touchdown point (forward strides) or ahead of it (backward): a stance
+            that starts and ends moving forward moves forward all along
+            (`slip_shift_limits`; docs/decisions.md, "Direction rule").
         rho0, g: leg length (m) and gravity (m/s^2) of the hopper the adjustments are
             scaled to (default: the reference hopper's).
     """
@@ -62,13 +66,15 @@ class SlipAdjust:
     co: float = -1.149
     cs: float = 0.2252
     reversal: bool = True
+    keep_direction: bool = True
     rho0: float = REFERENCE_HOPPER[2]
     g: float = REFERENCE_HOPPER[1]
 
     @classmethod
     def printed(cls, **kwargs) -> SlipAdjust:
         """The constants as printed in the paper (`Cm = 1.11, Ca = 1, Cb = 10, Co = -0.1`)."""
-        return cls(cm=1.11, ca=1.0, cb=10.0, co=-0.1, cs=1.1, reversal=False, **kwargs)
+        return cls(cm=1.11, ca=1.0, cb=10.0, co=-0.1, cs=1.1, reversal=False, keep_direction=False,
+                   **kwargs)
 
     def for_hopper(self, hopper) -> SlipAdjust:
         """The same adjustments scaled to `hopper` (anything with `g`, `rho0`; `m` unused).

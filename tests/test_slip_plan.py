@@ -80,10 +80,16 @@ def test_slip_shift_limits_replace_template_dy():
                 want_hi = min(want_hi, 0.0)
             if v > 0 > v_lo:
                 want_lo = max(want_lo, 0.0)
+            # Direction: a forward stride lifts off ahead of its COM's touchdown point, the
+            # foot lead `Y` behind the planned foot; mirrored backward.
+            if v >= 0 and v_lo >= 0:
+                want_lo = max(want_lo, -float(adjust.lead(v_lo)))
+            if v <= 0 and v_hi <= 0:
+                want_hi = min(want_hi, -float(adjust.lead(v_hi)))
             assert float(lo) == pytest.approx(want_lo, abs=1e-12)
             assert float(hi) == pytest.approx(want_hi, abs=1e-12)
-    # Without the reversal rule (the printed constants' setting) eq 35 alone.
-    row = paper_templates().for_slip(SlipAdjust(reversal=False)).row(12)
+    # Without the two rules (the printed constants' setting) eq 35 alone.
+    row = paper_templates().for_slip(SlipAdjust(reversal=False, keep_direction=False)).row(12)
     assert float(slip_shift_limits(jnp.asarray(-0.5), row)[1]) == pytest.approx(
         -float(SlipAdjust().h(-0.5 * (float(row.v_lo) - 0.5))), abs=1e-12)
     # BHop templates keep their own limits.
@@ -188,6 +194,35 @@ def test_a_reversing_stride_lifts_off_behind_its_foot():
     # Not a property of every stride: strides that keep their direction end on both sides.
     keep = ok & (ydot > 0) & (nxt[:, 2] > 0)
     assert (dy[keep] > 0).any() and (dy[keep] < 0).any()
+
+
+def test_a_stride_moving_forward_before_and_after_lifts_off_ahead_of_its_touchdown():
+    # The physics behind the direction rule of `slip_shift_limits`, on simulated strides
+    # with the foot on either side: the horizontal speed changes sign at most once in
+    # stance, so a stride whose apex speeds are both forward moves forward all along. Its
+    # BHop-equivalent liftoff point (the ascent traced back to the height rho0) lies ahead
+    # of its BHop-equivalent touchdown point (the descent traced to rho0); mirrored for
+    # backward strides.
+    from jaxhop._slip import slip_apex_map
+
+    rng = np.random.default_rng(11)
+    n = 4000
+    ydot = rng.uniform(-1.0, 1.0, n)
+    zr = rng.uniform(0.05, 0.8, n)
+    kc = rng.uniform(10.0, 60.0, n) * HOPPER.m * HOPPER.g
+    th = rng.uniform(-0.5, 0.5, n)
+    u = np.stack([th, kc, kc * np.exp(rng.uniform(np.log(0.5), np.log(2.0), n))], 1)
+    apex = np.stack([np.zeros(n), zr + 1.0, ydot], 1)
+    nxt, code = jax.jit(jax.vmap(lambda a, c: slip_apex_map(a, c, 0.0, HOPPER)))(apex, u)
+    nxt, code = np.asarray(nxt), np.asarray(code)
+    zr1 = nxt[:, 1] - 1.0
+    ok = (code == 0) & (zr1 > 0)
+    down = ydot * np.sqrt(2 * zr / HOPPER.g)
+    up = nxt[:, 0] - nxt[:, 2] * np.sqrt(np.maximum(2 * zr1, 0.0) / HOPPER.g)
+    fwd = ok & (ydot >= 0) & (nxt[:, 2] >= 0)
+    back = ok & (ydot <= 0) & (nxt[:, 2] <= 0)
+    assert fwd.sum() > 300 and back.sum() > 300
+    assert np.all(up[fwd] >= down[fwd]) and np.all(up[back] <= down[back])
 
 
 def test_a_stride_moving_backward_before_and_after_never_moves_forward():
