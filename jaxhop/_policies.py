@@ -344,11 +344,11 @@ def goal_policy_margin(goal, ti, seg_i, table: SituatedTable, templates: Templat
     """
     tmpl = templates.row(ti)
     if tmpl.slip is not None and tmpl.slip.keep_direction:
-        # A run ends within the goal tolerance, and a SLIP stride cannot stop on the spot:
-        # the last strides creep onto a goal at rest from either side of it, so goal
-        # policies keep eq 35's limits (docs/decisions.md, "Direction rule").
+        # A SLIP stride cannot stop on the spot: the last strides creep onto a goal at rest
+        # through the domain of its own segment, so a goal policy's goal may lie up to a
+        # segment behind the touchdown (docs/decisions.md, "Direction rule").
         tmpl = dataclasses.replace(
-            tmpl, slip=dataclasses.replace(tmpl.slip, keep_direction=False))
+            tmpl, slip=dataclasses.replace(tmpl.slip, direction_slack=1.0))
     py, h = table.centre[seg_i, 0], table.centre[seg_i, 1]
     b = table.seg_block[seg_i]
 

@@ -53,10 +53,11 @@ def slip_shift_limits(ydot, tmpl: Templates):
         # A stance that starts and ends moving forward moves forward all along, so it lifts
         # off ahead of the COM's touchdown point, the foot lead `Y` behind the planned foot;
         # mirrored for backward strides (docs/decisions.md, "Direction rule").
+        slack = 2.0 * tmpl.half_length * tmpl.slip.direction_slack
         lo = jnp.where((ydot >= 0) & (tmpl.v_lo >= 0),
-                       jnp.maximum(lo, -tmpl.slip.lead(tmpl.v_lo)), lo)
+                       jnp.maximum(lo, -tmpl.slip.lead(tmpl.v_lo) - slack), lo)
         hi = jnp.where((ydot <= 0) & (tmpl.v_hi <= 0),
-                       jnp.minimum(hi, -tmpl.slip.lead(tmpl.v_hi)), hi)
+                       jnp.minimum(hi, -tmpl.slip.lead(tmpl.v_hi) + slack), hi)
     return lo, hi
 
 

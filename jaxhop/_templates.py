@@ -54,6 +54,9 @@ class SlipAdjust:
             the COM's touchdown point (forward strides) or ahead of it (backward): a stance
             that starts and ends moving forward moves forward all along
             (`slip_shift_limits`; docs/decisions.md, "Direction rule").
+        direction_slack: how far behind the touchdown the direction rule still lets a
+            goal lie, in segment lengths (0 for the plan's policies; goal policies use 1,
+            `jaxhop._policies.goal_policy_margin`).
         rho0, g: leg length (m) and gravity (m/s^2) of the hopper the adjustments are
             scaled to (default: the reference hopper's).
     """
@@ -67,6 +70,7 @@ class SlipAdjust:
     cs: float = 0.2252
     reversal: bool = True
     keep_direction: bool = True
+    direction_slack: float = 0.0
     rho0: float = REFERENCE_HOPPER[2]
     g: float = REFERENCE_HOPPER[1]
 

@@ -43,7 +43,8 @@ def test_the_reference_hopper_keeps_its_adjustments_bit_for_bit():
     a, b = paper_templates().for_slip(), paper_templates().for_slip(hopper=REFERENCE)
     assert a.slip == b.slip and a.to_dict() == b.to_dict()
     assert set(a.to_dict()["slip"]) == {"theta_avg", "v_max", "cm", "ca", "cb", "co", "cs",
-                                        "reversal", "keep_direction"}
+                                        "reversal", "keep_direction",
+                                        "direction_slack"}
     for t in range(a.n):
         for ydot in (-1.7, -0.2, 0.0, 0.4, 2.1):
             y = jnp.asarray(ydot)

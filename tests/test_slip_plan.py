@@ -442,3 +442,31 @@ def test_a_slip_decision_for_a_small_leg_is_the_reference_decision_in_froude_uni
     np.testing.assert_allclose(slip_scales(leg)[0], np.asarray(_slip_scales(leg)[0]),
                                rtol=1e-14)
     assert slip_scales(leg)[1] == pytest.approx(1e-4 * length**2, rel=1e-14)
+
+
+def test_goal_policies_reach_a_goal_at_rest_on_its_own_segment_only():
+    # The direction rule with its goal-policy slack: a goal at rest lying in a segment is
+    # reached by that segment's slow forward template (runs creep onto it), not by the
+    # segment just ahead of it, whose every touchdown is past the goal (a forward stride
+    # from there cannot come back), and not by any segment without the slack.
+    import dataclasses
+
+    from jaxhop._policies import goal_policy_margin
+
+    terrain = builtin_terrain("flat")
+    slip = templates_for("slip")
+    segs = segments(terrain, slip.seg_length)
+    table = situated_table(terrain, segs, slip.seg_length)
+    centre = np.asarray(table.centre)
+    k = centre.shape[0] // 2
+    t = int(np.nonzero((np.asarray(slip.v_lo) == 0.0) & (np.asarray(slip.v_hi) > 0.0))[0][0])
+    py, h = centre[k]
+    goal = jnp.array([py + 0.3 * slip.half_length, h + 1.2, 0.0])
+
+    def reached(seg, tm):
+        return bool(goal_policy_margin(goal, t, seg, table, tm, terrain, HOPPER)[0])
+
+    assert reached(k, slip) and not reached(k + 1, slip)
+    strict = dataclasses.replace(slip, slip=dataclasses.replace(slip.slip,
+                                                                  keep_direction=False))
+    assert reached(k + 1, strict)  # eq 35 alone allows it
