@@ -286,19 +286,29 @@ def test_slip_reaches_the_goal_where_reversing_goals_made_it_cycle(perceived_sli
 
 
 @pytest.mark.slow
-def test_a_slip_miss_that_stays_put_is_decided_again(perceived_slip_plan):
-    # Under ground noise (seed 0) this apex in the goal area lies only in the domain of a
-    # policy whose goal is 0.17 m ahead with a backward speed: out of a SLIP stride's
-    # reach, its best miss is a stride in place that lands in the same domain again no
-    # nearer the goal. Runs through here hopped in place for 20-25 strides (about 30 in
-    # all). The adaptive controller decides again without that policy (the nearest other
-    # domain, a recovery), and the run from here reaches the goal within 12 strides.
+def test_a_slip_miss_that_stays_put_is_decided_again():
+    # A plan built without the direction rule (`SlipAdjust.keep_direction=False`: eq 35's
+    # limits alone) on the perceived map of `--noise ground` seed 0. This apex in the goal
+    # area lies only in the domain of a policy whose goal is 0.17 m ahead with a backward
+    # speed: out of a SLIP stride's reach, its best miss is a stride in place that lands in
+    # the same domain again no nearer the goal. Runs through here hopped in place for 20-25
+    # strides (about 30 in all). The adaptive controller decides again without that policy
+    # (the nearest other domain, a recovery), and the run from here reaches the goal within
+    # 12 strides. (With the direction rule no apex of a 0.02 m x 0.05 m x 0.05 m/s grid
+    # over 7-9.6 m of this map's domains meets the premise.)
+    import dataclasses
+
+    from jaxhop._cli import _perceived
     from jaxhop._execute import run_batch
     from jaxhop._models import SLIP_ACCEPT, decide_slip, first_match
+    from jaxhop._plan import build_plan
     from jaxhop._slip import slip_stride
     from jaxhop._slip_deadbeat import SEARCH_TOL, deadbeat_slip
 
-    plan, true = perceived_slip_plan
+    adjust = dataclasses.replace(templates_for("slip").slip, keep_direction=False)
+    true = builtin_terrain("reference")
+    plan = build_plan(_perceived(true, 0), None, paper_templates().for_slip(adjust),
+                      progress=False)
     tables = plan.tables(slip=True)
     apex = jnp.array([9.0216, 1.4916, -0.0265])
     found, sit, inst = first_match(apex, tables, HOPPER)
