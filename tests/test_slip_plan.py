@@ -97,15 +97,19 @@ def test_slip_shift_limits_replace_template_dy():
     assert tuple(map(float, slip_shift_limits(jnp.asarray(0.3), row))) == (0.0, 0.25)
 
 
+def _flat_slip_table():
+    """Flat ground's situated table for the SLIP templates, and its middle segment."""
+    terrain = builtin_terrain("flat")
+    slip = templates_for("slip")
+    table = situated_table(terrain, segments(terrain, slip.seg_length), slip.seg_length)
+    centre = np.asarray(table.centre)
+    return terrain, slip, table, centre, centre.shape[0] // 2
+
+
 def test_candidate_situated_uses_the_slip_foot():
     # On flat ground, an apex whose SLIP foot (lead Y ahead) lands on segment k is matched
     # to segment k's policies, and the BHop lookup puts it on another segment.
-    terrain = builtin_terrain("flat")
-    slip = templates_for("slip")
-    segs = segments(terrain, slip.seg_length)
-    table = situated_table(terrain, segs, slip.seg_length)
-    centre = np.asarray(segs.centre)
-    k = centre.shape[0] // 2
+    terrain, slip, table, centre, k = _flat_slip_table()
     ydot, z = 2.0, 1.4
     t_d = math.sqrt(2 * (z - centre[k, 1] - 1.0) / HOPPER.g)
     lead = ydot * math.sin(0.2) / 2.5
@@ -463,12 +467,7 @@ def test_goal_policies_reach_a_goal_at_rest_on_its_own_segment_only():
 
     from jaxhop._policies import goal_policy_margin
 
-    terrain = builtin_terrain("flat")
-    slip = templates_for("slip")
-    segs = segments(terrain, slip.seg_length)
-    table = situated_table(terrain, segs, slip.seg_length)
-    centre = np.asarray(table.centre)
-    k = centre.shape[0] // 2
+    terrain, slip, table, centre, k = _flat_slip_table()
     t = int(np.nonzero((np.asarray(slip.v_lo) == 0.0) & (np.asarray(slip.v_hi) > 0.0))[0][0])
     py, h = centre[k]
     goal = jnp.array([py + 0.3 * slip.half_length, h + 1.2, 0.0])
