@@ -170,24 +170,37 @@ def test_fitted_eq35_band_holds_most_slip_strides():
     assert 0.65 < inside.mean() < 0.92
 
 
+def _random_strides(seed, n, ydot, th, zr_lo=0.1):
+    """Simulated flat-ground strides from apexes at y = 0 with random height, leg
+    stiffnesses (kc 10-60 mg, kd within a factor 2 of it) and the given speeds and
+    touchdown angles (functions of the seeded generator): `(apex, u, next_apex, code)`."""
+    from jaxhop._slip import slip_apex_map
+
+    rng = np.random.default_rng(seed)
+    ydot = ydot(rng, n)
+    zr = rng.uniform(zr_lo, 0.8, n)
+    kc = rng.uniform(10.0, 60.0, n) * HOPPER.m * HOPPER.g
+    th = th(rng, ydot)
+    u = np.stack([th, kc, kc * np.exp(rng.uniform(np.log(0.5), np.log(2.0), n))], 1)
+    apex = np.stack([np.zeros(n), zr + 1.0, ydot], 1)
+    nxt, code = jax.jit(jax.vmap(lambda a, c: slip_apex_map(a, c, 0.0, HOPPER)))(apex, u)
+    return apex, u, np.asarray(nxt), np.asarray(code)
+
+
 def test_a_reversing_stride_lifts_off_behind_its_foot():
     # The physics behind the reversal rule of `slip_shift_limits`, checked on simulated
     # strides: the leg force points away from the foot, so a stance that turns forward
     # motion backward ends with the COM (and the BHop-equivalent liftoff point, further
     # along the backward ascent) behind the foot; mirrored for backward-to-forward.
-    from jaxhop._slip import flat_touchdown, slip_apex_map
+    from jaxhop._slip import flat_touchdown
 
-    rng = np.random.default_rng(5)
-    n = 3000
-    ydot = rng.uniform(-1.0, 1.0, n)
-    zr = rng.uniform(0.1, 0.8, n)
-    kc = rng.uniform(10.0, 60.0, n) * HOPPER.m * HOPPER.g
-    th = np.sign(ydot) * rng.uniform(0.0, 0.5, n)  # foot planted ahead: slows or reverses
-    u = np.stack([th, kc, kc * np.exp(rng.uniform(np.log(0.5), np.log(2.0), n))], 1)
-    apex = np.stack([np.zeros(n), zr + 1.0, ydot], 1)
-    nxt, code = jax.jit(jax.vmap(lambda a, c: slip_apex_map(a, c, 0.0, HOPPER)))(apex, u)
-    foot = jax.vmap(lambda a, t: flat_touchdown(a, t, 0.0, HOPPER)[0])(apex, u[:, 0])
-    nxt, code, foot = np.asarray(nxt), np.asarray(code), np.asarray(foot)
+    # The foot planted ahead (the touchdown angle's sign the speed's): slows or reverses.
+    apex, u, nxt, code = _random_strides(
+        5, 3000, lambda r, n: r.uniform(-1.0, 1.0, n),
+        lambda r, v: np.sign(v) * r.uniform(0.0, 0.5, v.size))
+    ydot = apex[:, 2]
+    foot = np.asarray(jax.vmap(lambda a, t: flat_touchdown(a, t, 0.0, HOPPER)[0])(
+        apex, u[:, 0]))
     zr1 = nxt[:, 1] - 1.0
     ok = (code == 0) & (zr1 > 0)
     dy = nxt[:, 0] - nxt[:, 2] * np.sqrt(np.maximum(2 * zr1, 0.0) / HOPPER.g) - foot
@@ -207,18 +220,10 @@ def test_a_stride_moving_forward_before_and_after_lifts_off_ahead_of_its_touchdo
     # BHop-equivalent liftoff point (the ascent traced back to the height rho0) lies ahead
     # of its BHop-equivalent touchdown point (the descent traced to rho0); mirrored for
     # backward strides.
-    from jaxhop._slip import slip_apex_map
-
-    rng = np.random.default_rng(11)
-    n = 4000
-    ydot = rng.uniform(-1.0, 1.0, n)
-    zr = rng.uniform(0.05, 0.8, n)
-    kc = rng.uniform(10.0, 60.0, n) * HOPPER.m * HOPPER.g
-    th = rng.uniform(-0.5, 0.5, n)
-    u = np.stack([th, kc, kc * np.exp(rng.uniform(np.log(0.5), np.log(2.0), n))], 1)
-    apex = np.stack([np.zeros(n), zr + 1.0, ydot], 1)
-    nxt, code = jax.jit(jax.vmap(lambda a, c: slip_apex_map(a, c, 0.0, HOPPER)))(apex, u)
-    nxt, code = np.asarray(nxt), np.asarray(code)
+    apex, _, nxt, code = _random_strides(
+        11, 4000, lambda r, n: r.uniform(-1.0, 1.0, n),
+        lambda r, v: r.uniform(-0.5, 0.5, v.size), zr_lo=0.05)
+    ydot, zr = apex[:, 2], apex[:, 1] - 1.0
     zr1 = nxt[:, 1] - 1.0
     ok = (code == 0) & (zr1 > 0)
     down = ydot * np.sqrt(2 * zr / HOPPER.g)
@@ -234,19 +239,10 @@ def test_a_stride_moving_backward_before_and_after_never_moves_forward():
     # the foot, so the horizontal speed changes sign at most once in stance; a stride whose
     # apex speeds are both backward moves backward all along, from apex to apex, whatever
     # the foot placement (simulated strides, both directions of touchdown angle).
-    from jaxhop._slip import slip_apex_map
     from jaxhop.parkour import leg_templates
 
-    rng = np.random.default_rng(8)
-    n = 3000
-    ydot = -rng.uniform(0.0, 1.0, n)
-    zr = rng.uniform(0.1, 0.8, n)
-    kc = rng.uniform(10.0, 60.0, n) * HOPPER.m * HOPPER.g
-    th = rng.uniform(-0.5, 0.5, n)
-    u = np.stack([th, kc, kc * np.exp(rng.uniform(np.log(0.5), np.log(2.0), n))], 1)
-    apex = np.stack([np.zeros(n), zr + 1.0, ydot], 1)
-    nxt, code = jax.jit(jax.vmap(lambda a, c: slip_apex_map(a, c, 0.0, HOPPER)))(apex, u)
-    nxt, code = np.asarray(nxt), np.asarray(code)
+    _, _, nxt, code = _random_strides(8, 3000, lambda r, n: -r.uniform(0.0, 1.0, n),
+                                      lambda r, v: r.uniform(-0.5, 0.5, v.size))
     back = (code == 0) & (nxt[:, 1] > 1.0) & (nxt[:, 2] < 0)
     assert back.sum() > 300
     assert np.all(nxt[back, 0] < 0)
