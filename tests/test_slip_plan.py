@@ -254,14 +254,20 @@ def test_a_stride_moving_backward_before_and_after_never_moves_forward():
     assert np.any(leg_templates().as_array()[:, 0] < 0)
 
 
-@pytest.fixture(scope="module")
-def perceived_slip_plan():
-    """The SLIP plan on the perceived map of `--noise ground` seed 0, and the true map."""
+def _perceived_plan(templates):
+    """The plan of `templates` on the perceived map of `--noise ground` seed 0, and the true
+    map."""
     from jaxhop._cli import _perceived
     from jaxhop._plan import build_plan
 
     true = builtin_terrain("reference")
-    return build_plan(_perceived(true, 0), None, templates_for("slip"), progress=False), true
+    return build_plan(_perceived(true, 0), None, templates, progress=False), true
+
+
+@pytest.fixture(scope="module")
+def perceived_slip_plan():
+    """The SLIP plan on the perceived map of `--noise ground` seed 0, and the true map."""
+    return _perceived_plan(templates_for("slip"))
 
 
 @pytest.mark.slow
@@ -298,17 +304,13 @@ def test_a_slip_miss_that_stays_put_is_decided_again():
     # over 7-9.6 m of this map's domains meets the premise.)
     import dataclasses
 
-    from jaxhop._cli import _perceived
     from jaxhop._execute import run_batch
     from jaxhop._models import SLIP_ACCEPT, decide_slip, first_match
-    from jaxhop._plan import build_plan
     from jaxhop._slip import slip_stride
     from jaxhop._slip_deadbeat import SEARCH_TOL, deadbeat_slip
 
     adjust = dataclasses.replace(templates_for("slip").slip, keep_direction=False)
-    true = builtin_terrain("reference")
-    plan = build_plan(_perceived(true, 0), None, paper_templates().for_slip(adjust),
-                      progress=False)
+    plan, true = _perceived_plan(paper_templates().for_slip(adjust))
     tables = plan.tables(slip=True)
     apex = jnp.array([9.0216, 1.4916, -0.0265])
     found, sit, inst = first_match(apex, tables, HOPPER)
