@@ -18,6 +18,7 @@ from jaxhop._slip import (
     Tolerances,
     _field,
     _liftoff,
+    compress,
     decompress,
     slip_apex_map,
     slip_stride,
@@ -238,6 +239,46 @@ def test_liftoff_event_does_not_fire_at_touchdown():
 def test_golden_section_bracket_not_starting_at_zero(lower, upper, best):
     got = golden_minimise(lambda x: (x - best) ** 2, lower, upper)
     assert abs(float(got) - best) < 1e-6 * max(1.0, abs(best))
+
+
+@pytest.mark.parametrize("phase, start, kappa, fell", [
+    ("compress", (0.0, 2.0), 30.0, False),  # (th_td, downward speed): an ordinary bottom
+    ("compress", (0.0, 8.0), 10.0, True),   # a soft leg collapses below COLLAPSED * rho0
+    ("decompress", (0.8, 1.2, 0.0, 1.0), 10.0, False),  # bottom state: an ordinary liftoff
+    ("decompress", (0.8, 1.4, 0.0, 1.0), 10.0, True),   # the body tips to the foot's level
+    ("decompress", (0.9, 1.2, 0.0, 3.0), 10.0, True),   # ... at rho = 0.996, just before
+])
+def test_a_stance_phase_ends_at_the_first_of_its_two_events(phase, start, kappa, fell):
+    """A stance phase ends at its own event (bottom: rho' = 0; liftoff: rho = rho0) or where
+    the body falls, whichever comes first. solve_ivp with the two as separate terminal
+    events decides which; the phase's code and end state must be that event's."""
+    k = kappa * MG
+    if phase == "compress":
+        th, speed = start
+        v = np.array([0.0, -speed])
+        x0 = [HOP.rho0, th, -speed * np.cos(th), speed * np.sin(th) / HOP.rho0]
+        x_end, code = jax.jit(compress)(th, jnp.asarray(v), k, HOP)
+    else:
+        x0 = list(start)
+        x_end, code = jax.jit(decompress)(jnp.asarray(x0), k, HOP)
+
+    def field(t, x):
+        return [x[2], x[3], x[0] * x[3] ** 2 - k / HOP.m * (x[0] - HOP.rho0)
+                - HOP.g * np.cos(x[1]), (-2 * x[2] * x[3] + HOP.g * np.sin(x[1])) / x[0]]
+
+    def own(t, x):
+        return x[2] if phase == "compress" else x[0] - HOP.rho0
+
+    def fallen(t, x):
+        return min(x[0] * np.cos(x[1]), x[0] - COLLAPSED * HOP.rho0)
+
+    own.terminal, own.direction = True, 1
+    fallen.terminal, fallen.direction = True, -1
+    ref = solve_ivp(field, (0, 5), x0, method="DOP853", rtol=1e-11, atol=1e-12,
+                    events=[own, fallen])
+    assert (len(ref.t_events[0]), len(ref.t_events[1])) == ((0, 1) if fell else (1, 0))
+    assert int(code) == (COLLISION if fell else OK)
+    np.testing.assert_allclose(np.asarray(x_end), ref.y[:, -1], rtol=0, atol=1e-6)
 
 
 def test_golden_section_pitfall_still_present_or_fixed():
