@@ -14,6 +14,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._batching import run_once
 from ._bhop import ascent, deadbeat_bhop, safe_sqrt, stance
 from ._errors import InputError
 from ._flight import COLLISION, OK, liftoff_clear, touchdown
@@ -279,22 +280,20 @@ def decide_slip(apex, tables: PlanTables, hopper: Hopper, n_candidates: int = SL
     Returns:
         `(found, u, instantiated)`, and with `recover` whether the apex was recovered.
     """
-    from ._slip import slip_stride
-    from ._slip_deadbeat import SEARCH_TOL, deadbeat_slip
+    from ._slip_deadbeat import deadbeat_slip
 
     nt = tables.templates.n
     terrain = tables.terrain if heights is None else tables.terrain.with_heights(heights)
     scale, stage_c2 = _slip_scales(hopper)
 
-    def one(goal, h_):
-        u, ok = deadbeat_slip(apex, goal, h_, hopper, terrain=terrain, wind=wind,
-                              table=tables.slip, fallback=False, accept=stage_c2)
-        pred, code, _ = slip_stride(apex, u, terrain, hopper, 0.0 if wind is None else wind,
-                                    SEARCH_TOL)
+    def one(apex, goal, h_):
+        u, _, pred, code = deadbeat_slip(apex, goal, h_, hopper, terrain=terrain, wind=wind,
+                                         table=tables.slip, fallback=False, accept=stage_c2,
+                                         predict=True)
         miss = jnp.max(jnp.abs(pred - goal) / scale)
         return u, jnp.where((code == OK) & jnp.all(jnp.isfinite(pred)), miss, jnp.inf), pred
 
-    def choose(exclude, run):
+    def choose(apex, exclude):
         ids, pos, recovered = _match_positions(apex, tables, hopper, recover, exclude)
         neg, k = jax.lax.top_k(-pos, n_candidates)
         valid = -neg < _NO_MATCH
@@ -305,9 +304,9 @@ def decide_slip(apex, tables: PlanTables, hopper: Hopper, n_candidates: int = SL
         if heights is not None:
             h = heights[tables.table.seg_block[sit // nt]]
         if tables.slip is None:
-            u, miss, pred = jax.vmap(one)(goals, h)
+            u, miss, pred = jax.vmap(one, (None, 0, 0))(apex, goals, h)
         else:
-            u, miss, pred = _first_accepted(one, goals, h, valid & run)
+            u, miss, pred = _first_accepted(lambda g, h_: one(apex, g, h_), goals, h, valid)
         miss = jnp.where(valid, miss, jnp.inf)
         good = miss <= 1.0
         pick = jnp.where(jnp.any(good), jnp.argmax(good), jnp.argmin(miss))
@@ -321,8 +320,9 @@ def decide_slip(apex, tables: PlanTables, hopper: Hopper, n_candidates: int = SL
                  & (sit_next == sit[pick]) & away)
         return (valid[0], u[pick], inst[pick], recovered), sit[pick], stuck
 
-    first, sit, stuck = choose(None, True)
-    again, _, _ = choose(lambda ids: ids == sit, stuck)
+    first, sit, stuck = choose(apex, None)
+    # The second decision runs only where the first one is stuck (`run_once`).
+    again = run_once(stuck, lambda zero: choose(apex + zero, lambda ids: ids == sit)[0], first)
     # Where no other policy is left, `again` found nothing and the first decision stands.
     use = stuck & again[0] & (recover_again | ~again[3])
     out = jax.tree.map(lambda a, b: jnp.where(use, a, b), again, first)

@@ -47,6 +47,8 @@ from ._slip import (
     compress,
     decompress,
     flat_touchdown,
+    slip_stride,
+    stride_clear,
 )
 
 # Control limits (eq 14; `docs/slip.md`, "Deadbeat") and the touchdown-angle search interval.
@@ -116,7 +118,8 @@ def _wind_kd(apex, goal, h, th, kc, x_b, v_td, hopper: Hopper, tol: Tolerances, 
     return run_once(wind != 0.0, second, kd)
 
 
-def _trial(apex, goal, h, th, kc, hopper: Hopper, tol: Tolerances, terrain=None, wind=None):
+def _trial(apex, goal, h, th, kc, hopper: Hopper, tol: Tolerances, terrain=None, wind=None,
+           clearance=False):
     """Stride over flat ground with `kd` from eq 12.
 
     With `wind` (a horizontal flight acceleration; `None`: none), both flight phases fly
@@ -131,7 +134,9 @@ def _trial(apex, goal, h, th, kc, hopper: Hopper, tol: Tolerances, terrain=None,
         `(next_apex, code, kd, speed)`. `speed` is what the inner search sees: the liftoff
         horizontal velocity when both stance phases completed (continuous in `th_td` even
         where the liftoff does not rise), else `-+_FAIL_SPEED` by the side the body fell to
-        (a leg far behind the body acts like "too fast"), which keeps it monotone.
+        (a leg far behind the body acts like "too fast"), which keeps it monotone. With
+        `clearance` (and `terrain`) a fifth value: whether the stride also clears the
+        terrain as `slip_stride` checks it (`jaxhop._slip.stride_clear`).
     """
     y_foot, v_td, reached = flat_touchdown(apex, th, h, hopper, wind)
     if terrain is not None:
@@ -157,8 +162,15 @@ def _trial(apex, goal, h, th, kc, hopper: Hopper, tol: Tolerances, terrain=None,
     code = jnp.where(reached & kd_ok & (v_lo[1] > 0), code, jnp.maximum(code, 1))
     th_end = jnp.where(code_c != OK, x_b[1], x_lo[1])
     speed = jnp.where(stance_ok, v_lo[0], jnp.where(th_end < 0, _FAIL_SPEED, -_FAIL_SPEED))
-    nxt = ascent(p_lo + jnp.stack([y_foot, h]), v_lo, hopper, 0.0 if wind is None else wind)
-    return nxt, code, kd, speed
+    foot = jnp.stack([y_foot, h])
+    a = 0.0 if wind is None else wind
+    nxt = ascent(p_lo + foot, v_lo, hopper, a)
+    if not clearance:
+        return nxt, code, kd, speed
+    z_min = jnp.minimum(jnp.minimum(hopper.rho0 * jnp.cos(th), x_b[0] * jnp.cos(x_b[1])),
+                        p_lo[1])
+    clear = stride_clear(th, foot, z_min, p_lo + foot, v_lo, terrain, hopper, a)
+    return nxt, code, kd, speed, clear
 
 
 def _c2(nxt, code, goal):
@@ -398,7 +410,7 @@ def _deadbeat_gradient(apex, goal, h, hopper, tol, max_iter=16, cost_tol=1e-16,
 
 def deadbeat_slip(apex, goal, h, hopper: Hopper, method: str = "gradient",
                   tol: Tolerances = SEARCH_TOL, terrain=None, wind=None, table=None,
-                  fallback=True, accept=1e-8):
+                  fallback=True, accept=1e-8, predict=False):
     """Position-aware SLIP deadbeat controls taking `apex` to `goal` over a foothold at `h`.
 
     Arguments:
@@ -413,12 +425,18 @@ def deadbeat_slip(apex, goal, h, hopper: Hopper, method: str = "gradient",
         table: `"gradient"` only: a `jaxhop._slip_table.SlipTable` to start from
             (`_slip_table._deadbeat_table`; the multi-start solver's starts where the
             table's miss C2 <= `accept` and `fallback`, or where the table has none).
+        predict: with `terrain`, also return the stride `u` gives (`slip_stride` at `tol`
+            over `terrain` with `wind`) as `(next_apex, code)`, without a stride of its own
+            where `u` needed no clipping.
 
     Returns:
-        `(u, ok)`: `u = (th_td, kc, kd)` clipped to the control limits; `ok` when no
-        clipping was needed and the trial stride with `u` completes. `ValueError`: an
-        unknown `method`.
+        `(u, ok)` (with `predict`: `(u, ok, next_apex, code)`): `u = (th_td, kc, kd)`
+        clipped to the control limits; `ok` when no clipping was needed and the trial
+        stride with `u` completes. `ValueError`: an unknown `method`, or `predict` without
+        `terrain`.
     """
+    if predict and terrain is None:
+        raise ValueError("predict needs the terrain the stride is predicted on")
     if method == "bracket":
         if wind is not None:
             raise ValueError("the bracket solver is windless; use method='gradient'")
@@ -432,18 +450,34 @@ def deadbeat_slip(apex, goal, h, hopper: Hopper, method: str = "gradient",
         th, kc, _ = _deadbeat_gradient(apex, goal, h, hopper, tol, terrain=terrain, wind=wind)
     else:
         raise ValueError(f"method must be 'bracket' or 'gradient', got {method!r}")
-    return _controls(apex, goal, h, th, kc, hopper, tol, terrain, wind)
+    return _controls(apex, goal, h, th, kc, hopper, tol, terrain, wind, predict)
 
 
-def _controls(apex, goal, h, th, kc, hopper, tol, terrain=None, wind=None):
+def _controls(apex, goal, h, th, kc, hopper, tol, terrain=None, wind=None, predict=False):
     """`(u, ok)` of `deadbeat_slip` for the solution `(th_td, kc)`: eq 12's `kd` from its
-    trial stride, the controls clipped to their limits."""
-    _, code, kd, _ = _trial(apex, goal, h, th, kc, hopper, tol, terrain, wind)
+    trial stride, the controls clipped to their limits. With `predict` (and `terrain`),
+    also `(pred, code)` of `slip_stride` with `u` at `tol`: the trial stride itself where
+    no control was clipped (the same stride, with `slip_stride`'s clearance checks), a
+    stride of its own only where one was."""
+    out = _trial(apex, goal, h, th, kc, hopper, tol, terrain, wind, clearance=predict)
+    code, kd = out[1], out[2]
     kc_lo, kc_hi = kc_limits(hopper)
     kc_c = jnp.clip(kc, kc_lo, kc_hi)
     kd_c = jnp.clip(kd, RATIO_LO * kc_c, RATIO_HI * kc_c)
     ok = (code == OK) & (kd_c == kd) & (kc_c == kc) & jnp.isfinite(kd)
-    return jnp.stack([th, kc_c, jnp.where(jnp.isfinite(kd_c), kd_c, kc_c)]), ok
+    u = jnp.stack([th, kc_c, jnp.where(jnp.isfinite(kd_c), kd_c, kc_c)])
+    if not predict:
+        return u, ok
+    clipped = (kd_c != kd) | (kc_c != kc) | ~jnp.isfinite(kd)
+
+    def stride(zero):
+        nxt, code, _ = slip_stride(apex + zero, u, terrain, hopper,
+                                   0.0 if wind is None else wind, tol)
+        return nxt, code
+
+    trial = (out[0], jnp.where((code == OK) & out[4], OK, jnp.maximum(code, 1)))
+    pred, code = run_once(clipped, stride, trial)
+    return u, ok, pred, code
 
 
 deadbeat_slip_jit = eqx.filter_jit(deadbeat_slip)

@@ -176,3 +176,44 @@ def test_no_table_start_runs_the_multi_start_solver(table):
     nxt, code, _ = RS.slip_stride(np.asarray(apex), np.asarray(u), twin_terrain, R.Hopper())
     assert code == 0
     np.testing.assert_allclose(nxt, goal, atol=1e-3)
+
+
+def test_predicted_stride_is_the_stride_of_the_controls(table):
+    """`deadbeat_slip(predict=True)` returns the stride its controls give without running
+    it where no control was clipped: it must equal `slip_stride` with those controls on the
+    same map (apex, and whether the stride succeeds, clearance checks included), clipped or
+    not, with and without wind, next to a tall block that some strides sweep over."""
+    from jaxhop._flight import OK
+    from jaxhop._slip import slip_stride
+    from jaxhop._slip_deadbeat import SEARCH_TOL, deadbeat_slip
+    from jaxhop._terrain import make_terrain
+
+    terrain = make_terrain([(-4.0, 1.1, 0.0), (1.1, 1.3, 0.8), (1.3, 5.0, 0.0)])
+    rng = np.random.default_rng(7)
+    n = 48
+    apex = np.stack([rng.uniform(-0.6, 0.4, n), rng.uniform(1.15, 1.6, n),
+                     rng.uniform(-0.5, 2.5, n)], axis=1)
+    goal = np.stack([apex[:, 0] + rng.uniform(-0.5, 1.8, n), rng.uniform(1.0, 1.7, n),
+                     rng.uniform(-0.5, 3.0, n)], axis=1)
+    wind = np.where(np.arange(n) % 2 == 0, 0.0, rng.uniform(-0.5, 0.5, n))
+
+    def both(a, g, w):
+        u, ok, pred, code = deadbeat_slip(a, g, 0.0, HOP, terrain=terrain, wind=w,
+                                          table=table, fallback=False, accept=1e-4,
+                                          predict=True)
+        ref, ref_code, _ = slip_stride(a, u, terrain, HOP, w, SEARCH_TOL)
+        return ok, pred, code, ref, ref_code
+
+    ok, pred, code, ref, ref_code = (np.asarray(x) for x in jax.jit(jax.vmap(both))(
+        jnp.asarray(apex), jnp.asarray(goal), jnp.asarray(wind)))
+    np.testing.assert_array_equal(code == OK, ref_code == OK)
+    good = ref_code == OK
+    np.testing.assert_allclose(pred[good], ref[good], rtol=0, atol=1e-12)
+    # Every branch is taken: strides without clipping that succeed, strides without
+    # clipping that the tall block stops (the clearance checks), and clipped controls.
+    assert np.sum(ok & good) >= 5
+    assert np.sum(ok & ~good) >= 1
+    assert np.sum(~ok) >= 5
+    with pytest.raises(ValueError, match="terrain"):
+        deadbeat_slip(jnp.asarray(apex[0]), jnp.asarray(goal[0]), 0.0, HOP, table=table,
+                      predict=True)
