@@ -17,7 +17,7 @@ STAGES = [
     ["__init__"],  # re-exports only; checked separately below
     ["_errors", "_params", "_paths", "_validate", "_result"],
     ["_terrain", "_batching", "_progress", "_programs"],
-    ["_bhop", "_flight", "_slip", "_slip_deadbeat", "_slip_table"],
+    ["_bhop", "_flight", "_slip", "_slip_deadbeat", "_slip_bracket", "_slip_table"],
     ["_templates"],
     ["_regions", "_policies"],
     ["_graph", "_deploy", "_stages", "_plan"],

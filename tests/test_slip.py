@@ -23,13 +23,13 @@ from jaxhop._slip import (
     slip_apex_map,
     slip_stride,
 )
+from jaxhop._slip_bracket import golden_minimise
 from jaxhop._slip_deadbeat import (
     KAPPA_HI,
     KAPPA_LO,
     RATIO_HI,
     RATIO_LO,
     deadbeat_slip,
-    golden_minimise,
 )
 from jaxhop._terrain import make_terrain
 
