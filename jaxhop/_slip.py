@@ -184,9 +184,14 @@ def stance(th_td, v_td, kc, kd, hopper: Hopper, tol: Tolerances = STRIDE_TOL, en
     x_lo, code_d = decompress(x_b, kd, hopper, tol)
     code = jnp.where(code_c != OK, code_c, code_d)
     p_lo, v_lo = _cartesian(x_lo)
-    z_min = jnp.minimum(jnp.minimum(hopper.rho0 * jnp.cos(th_td), x_b[0] * jnp.cos(x_b[1])),
-                        p_lo[1])
-    return Stance(code, p_lo, v_lo, x_b[0], z_min)
+    return Stance(code, p_lo, v_lo, x_b[0], lowest_com(th_td, x_b, p_lo, hopper))
+
+
+def lowest_com(th_td, x_b, p_lo, hopper: Hopper):
+    """The COM height over the foot that the clearance check takes as the stance's lowest:
+    the lowest of touchdown (leg at `th_td`), bottom (`x_b`) and liftoff (`p_lo`)."""
+    return jnp.minimum(jnp.minimum(hopper.rho0 * jnp.cos(th_td), x_b[0] * jnp.cos(x_b[1])),
+                       p_lo[1])
 
 
 def ascent(p_lo, v_lo, hopper: Hopper, wind=0.0):

@@ -45,6 +45,7 @@ from ._slip import (
     compress,
     decompress,
     flat_touchdown,
+    lowest_com,
     slip_stride,
     stride_clear,
 )
@@ -160,9 +161,8 @@ def _trial(apex, goal, h, th, kc, hopper: Hopper, tol: Tolerances, terrain=None,
     nxt = ascent(p_lo + foot, v_lo, hopper, a)
     if not clearance:
         return nxt, code, kd, speed
-    z_min = jnp.minimum(jnp.minimum(hopper.rho0 * jnp.cos(th), x_b[0] * jnp.cos(x_b[1])),
-                        p_lo[1])
-    clear = stride_clear(th, foot, z_min, p_lo + foot, v_lo, terrain, hopper, a)
+    clear = stride_clear(th, foot, lowest_com(th, x_b, p_lo, hopper), p_lo + foot, v_lo,
+                         terrain, hopper, a)
     return nxt, code, kd, speed, clear
 
 
@@ -354,11 +354,11 @@ def _controls(apex, goal, h, th, kc, hopper, tol, terrain=None, wind=None, predi
     kc_lo, kc_hi = kc_limits(hopper)
     kc_c = jnp.clip(kc, kc_lo, kc_hi)
     kd_c = jnp.clip(kd, RATIO_LO * kc_c, RATIO_HI * kc_c)
-    ok = (code == OK) & (kd_c == kd) & (kc_c == kc) & jnp.isfinite(kd)
+    clipped = (kd_c != kd) | (kc_c != kc) | ~jnp.isfinite(kd)
+    ok = (code == OK) & ~clipped
     u = jnp.stack([th, kc_c, jnp.where(jnp.isfinite(kd_c), kd_c, kc_c)])
     if not predict:
         return u, ok
-    clipped = (kd_c != kd) | (kc_c != kc) | ~jnp.isfinite(kd)
 
     def stride(zero):
         nxt, code, _ = slip_stride(apex + zero, u, terrain, hopper,
