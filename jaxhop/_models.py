@@ -262,7 +262,9 @@ def decide_slip(apex, tables: PlanTables, hopper: Hopper, n_candidates: int = SL
     controller runs the SLIP deadbeat (eqs 12-16) for the `n_candidates` highest-priority
     matching policies, predicts each stride over the policy's foothold height, and takes the
     first in deployment order whose prediction lies within `SLIP_ACCEPT` of its goal; when
-    none does, the one with the smallest miss relative to `SLIP_ACCEPT`.
+    none does, the one with the smallest miss relative to `SLIP_ACCEPT`. The deadbeat's
+    trial strides and the prediction integrate at `DECISION_TOL` (an apex within 5e-5 of
+    the executed 1e-10 stride, far inside `SLIP_ACCEPT`).
 
     A chosen miss whose predicted apex lies in the same policy's domain again, no nearer its
     goal, would repeat from there stride after stride (a goal ahead of a hopper standing
@@ -280,16 +282,16 @@ def decide_slip(apex, tables: PlanTables, hopper: Hopper, n_candidates: int = SL
     Returns:
         `(found, u, instantiated)`, and with `recover` whether the apex was recovered.
     """
-    from ._slip_deadbeat import deadbeat_slip
+    from ._slip_deadbeat import DECISION_TOL, deadbeat_slip
 
     nt = tables.templates.n
     terrain = tables.terrain if heights is None else tables.terrain.with_heights(heights)
     scale, stage_c2 = _slip_scales(hopper)
 
     def one(apex, goal, h_):
-        u, _, pred, code = deadbeat_slip(apex, goal, h_, hopper, terrain=terrain, wind=wind,
-                                         table=tables.slip, fallback=False, accept=stage_c2,
-                                         predict=True)
+        u, _, pred, code = deadbeat_slip(apex, goal, h_, hopper, tol=DECISION_TOL,
+                                         terrain=terrain, wind=wind, table=tables.slip,
+                                         fallback=False, accept=stage_c2, predict=True)
         miss = jnp.max(jnp.abs(pred - goal) / scale)
         return u, jnp.where((code == OK) & jnp.all(jnp.isfinite(pred)), miss, jnp.inf), pred
 

@@ -318,14 +318,13 @@ def table_starts(table: SlipTable, apex, goal, h, hopper: Hopper, n_starts: int,
 # start at a time, each only where the ones before it missed `accept`: the table's
 # TABLE_STARTS refined starts, best first (stage 1: the first; stage 2: the others), then
 # (`fallback`) the multi-start solver's starts (`_initial_guesses`, stage 3). A table start's
-# polish stops at the trial strides' noise floor (SEARCH_TOL moves an apex by ~1e-7 m:
-# POLISH_COST, or three rejected steps in a row), on a target out of reach (an accepted
+# polish stops at the trial strides' noise floor (`polish_cost`, or three rejected steps
+# in a row), on a target out of reach (an accepted
 # step that gains less than POLISH_STALL of C2), or after POLISH_ITER steps; a multi-start
 # one has the same stops after up to MULTI_ITER steps. One start at a time keeps a single
 # Gauss-Newton program in the compiled decision (a vmap per stage compiled one per stage).
 TABLE_STARTS = 3
 POLISH_ITER = 6
-POLISH_COST = 1e-14  # C2 of an apex error of 1e-7 m (m/s)
 POLISH_MIN_TRUST = 1.0 / 64
 POLISH_STALL = 1e-3
 # A deadbeat solve is accepted below this C2 (an apex error of 0.1 mm); a decision accepts
@@ -333,6 +332,12 @@ POLISH_STALL = 1e-3
 ACCEPT_C2 = 1e-8
 N_MULTI = 3  # the multi-start solver's starts (`_initial_guesses`)
 MULTI_ITER = 16  # their longest polish (the same stops as a table start's)
+
+
+def polish_cost(tol):
+    """The polish's noise floor: C2 of an apex error of ten times the trial strides'
+    tolerance (1e-14 at SEARCH_TOL, 1e-8 at DECISION_TOL; `jaxhop._slip_deadbeat`)."""
+    return (10.0 * max(tol.rtol, tol.atol)) ** 2
 
 
 def _deadbeat_table(apex, goal, h, hopper, tol, table, terrain=None, wind=None,
@@ -367,7 +372,7 @@ def _deadbeat_table(apex, goal, h, hopper, tol, table, terrain=None, wind=None,
 
         th, kc, c = _deadbeat_gradient(apex, goal, h, hopper, tol,
                                        jnp.where(table_start, POLISH_ITER, MULTI_ITER),
-                                       POLISH_COST, terrain, wind, p0[None],
+                                       polish_cost(tol), terrain, wind, p0[None],
                                        POLISH_MIN_TRUST, POLISH_STALL)
         better = c < c2
         q = jnp.stack([th, (kc - kc_lo) / (kc_hi - kc_lo)])

@@ -27,7 +27,7 @@ from ._model import (
     touchdown_one,
 )
 from ._plan import Plan
-from ._slip import SEARCH_ATOL, SEARCH_RTOL, deadbeat_slip, slip_stride
+from ._slip import DECISION_TOL, deadbeat_slip, slip_stride
 
 _BIG = np.iinfo(np.int32).max
 # Mirrors of jaxhop._execute's SLIP decision constants.
@@ -145,9 +145,10 @@ class Controller:
 
         def one(c, **kw):
             goal = self.plan.goals[insts[c]]
-            u, _ = deadbeat_slip(apex, goal, hs[c], sit.hopper, terrain=sit.terrain, **kw)
-            pred, code, _ = slip_stride(apex, u, sit.terrain, sit.hopper, 0.0, SEARCH_RTOL,
-                                       SEARCH_ATOL)
+            u, _ = deadbeat_slip(apex, goal, hs[c], sit.hopper, terrain=sit.terrain,
+                                 tol=DECISION_TOL, **kw)
+            pred, code, _ = slip_stride(apex, u, sit.terrain, sit.hopper, 0.0, DECISION_TOL,
+                                       DECISION_TOL)
             ok = code == OK and np.all(np.isfinite(pred))
             miss = float(np.max(np.abs(pred - goal) / scale)) if ok else np.inf
             return u, miss, pred

@@ -48,6 +48,7 @@ from ._model import (
 RTOL = 1e-10
 ATOL = 1e-10
 SEARCH_RTOL = SEARCH_ATOL = 1e-8
+DECISION_TOL = 1e-5  # rtol = atol of a controller's decision (`DECISION_TOL` in JAX)
 PHASE_T_MAX = 5.0
 COLLAPSED = 0.25
 KAPPA_LO, KAPPA_HI = 10.0, 60.0
@@ -264,15 +265,15 @@ def trial(apex, goal, h, th, kc, hopper: Hopper, rtol=SEARCH_RTOL, atol=SEARCH_A
     return ascent(p_lo + np.array([y_foot, h]), v_lo, hopper), code, kd
 
 
-def trial_speed(apex, goal, h, th, kc, hopper: Hopper, terrain=None):
+def trial_speed(apex, goal, h, th, kc, hopper: Hopper, terrain=None, tol=SEARCH_RTOL):
     """The liftoff speed the inner search sees (`_trial`'s `speed`): `ydot_lo` when both
     stance phases complete, else `+-FAIL_SPEED` by the side the leg ended on."""
     _, v_td, _, _ = _descent(apex, th, h, hopper, terrain)
-    x_b, code_c = compress(th, v_td, kc, hopper, SEARCH_RTOL, SEARCH_ATOL)
+    x_b, code_c = compress(th, v_td, kc, hopper, tol, tol)
     if code_c != OK:
         return FAIL_SPEED if x_b[1] < 0 else -FAIL_SPEED
     kd = float(energy_kd(apex, goal, kc, x_b[0], hopper))
-    x_lo, code_d = decompress(x_b, kd if kd > 0 else kc, hopper, SEARCH_RTOL, SEARCH_ATOL)
+    x_lo, code_d = decompress(x_b, kd if kd > 0 else kc, hopper, tol, tol)
     if code_d == OK and kd > 0:
         return _cartesian(x_lo)[1][0]
     return FAIL_SPEED if x_lo[1] < 0 else -FAIL_SPEED
@@ -282,31 +283,31 @@ def _clip_p(p):
     return min(max(float(p[0]), TH_LO), TH_HI), min(max(float(p[1]), 0.0), 1.0)
 
 
-def _residual(p, apex, goal, h, hopper: Hopper, sqrt_w, terrain=None):
+def _residual(p, apex, goal, h, hopper: Hopper, sqrt_w, terrain=None, tol=SEARCH_RTOL):
     """Weighted apex error of a trial stride at `p = (th_td, s)`, clipped to the bounds as
     the JAX solver clips its iterates; `1e3` where the trial fails."""
     if not np.all(np.isfinite(p)):
         return sqrt_w * 1e3
     th, s = _clip_p(p)
     kc_lo, kc_hi = kc_limits(hopper)
-    nxt, code, _ = trial(apex, goal, h, th, kc_lo + s * (kc_hi - kc_lo), hopper,
-                         terrain=terrain)
+    nxt, code, _ = trial(apex, goal, h, th, kc_lo + s * (kc_hi - kc_lo), hopper, tol, tol,
+                         terrain)
     return sqrt_w * (nxt - goal) if code == OK else sqrt_w * 1e3
 
 
-def _bisect_th(apex, goal, h, kc, hopper: Hopper, terrain):
+def _bisect_th(apex, goal, h, kc, hopper: Hopper, terrain, tol=SEARCH_RTOL):
     """`START_BISECTIONS` bisection steps of the inner problem on `[TH_LO, TH_HI]`."""
     lo, hi = TH_LO, TH_HI
     for _ in range(START_BISECTIONS):
         mid = 0.5 * (lo + hi)
-        if trial_speed(apex, goal, h, mid, kc, hopper, terrain) > goal[2]:
+        if trial_speed(apex, goal, h, mid, kc, hopper, terrain, tol) > goal[2]:
             lo = mid
         else:
             hi = mid
     return 0.5 * (lo + hi)
 
 
-def initial_guesses(apex, goal, h, hopper: Hopper, terrain=None):
+def initial_guesses(apex, goal, h, hopper: Hopper, terrain=None, tol=SEARCH_RTOL):
     """The JAX solver's starts: for each `s` of 3, the best `th_td` of 9 on `[-0.5, 0.5]`,
     or the inner problem's short bisection where that costs less."""
     ths = np.linspace(-0.5, 0.5, 9)
@@ -315,14 +316,14 @@ def initial_guesses(apex, goal, h, hopper: Hopper, terrain=None):
 
     def cost(th, s):
         return float(np.sum(weights * _residual((th, s), apex, goal, h, hopper, np.ones(3),
-                                                terrain) ** 2))
+                                                terrain, tol) ** 2))
 
     starts = []
     for s in (0.05, 0.35, 0.7):
         costs = [cost(th, s) for th in ths]
         start = (ths[int(np.argmin(costs))], s)
         if START_BISECTIONS:
-            th_b = _bisect_th(apex, goal, h, kc_lo + s * (kc_hi - kc_lo), hopper, terrain)
+            th_b = _bisect_th(apex, goal, h, kc_lo + s * (kc_hi - kc_lo), hopper, terrain, tol)
             if cost(th_b, s) < min(costs):
                 start = (th_b, s)
         starts.append(start)
@@ -346,7 +347,7 @@ def _jacobian(p, apex, goal, h, hopper: Hopper, sqrt_w, terrain=None):
 
 
 def _gauss_newton(p0, apex, goal, h, hopper: Hopper, sqrt_w, max_iter=16, cost_tol=1e-16,
-                  terrain=None, min_trust=0.0, stall=0.0):
+                  terrain=None, min_trust=0.0, stall=0.0, tol=SEARCH_RTOL):
     """`_deadbeat_gradient`'s damped Gauss-Newton, step for step: the step
     `(J'J + 1e-12 tr(J'J) I)^-1 J'r` times the trust scale, clipped to `MAX_STEP` per
     coordinate and the iterate to the bounds; a trial that does not lower C2 is rejected and
@@ -354,7 +355,8 @@ def _gauss_newton(p0, apex, goal, h, hopper: Hopper, sqrt_w, max_iter=16, cost_t
     matrix (a failed stride's zero Jacobian) gives no step; at a bound of `s` with the
     gradient pointing out of the box the step is along `th_td` alone. Stops as the JAX
     solver's: after `max_iter` trials, at a C2 below `cost_tol`, a trust scale below
-    `min_trust`, or an accepted trial that gains less than the fraction `stall` of C2."""
+    `min_trust`, or an accepted trial that gains less than the fraction `stall` of C2.
+    Trial strides at `tol` (rtol = atol), the Jacobian's at `JAC_TOL`."""
     def step(p, r, jac, trust):
         normal = jac.T @ jac + 1e-12 * np.trace(jac.T @ jac) * np.eye(2)
         grad = jac.T @ r
@@ -371,7 +373,7 @@ def _gauss_newton(p0, apex, goal, h, hopper: Hopper, sqrt_w, max_iter=16, cost_t
         return np.array([min(max(q[0], TH_LO), TH_HI), min(max(q[1], 0.0), 1.0)])
 
     best = np.asarray(p0, float)
-    r_b = _residual(best, apex, goal, h, hopper, sqrt_w, terrain)
+    r_b = _residual(best, apex, goal, h, hopper, sqrt_w, terrain, tol)
     jac_b = _jacobian(best, apex, goal, h, hopper, sqrt_w, terrain)
     cost_b = float(r_b @ r_b)
     trust = 1.0
@@ -380,7 +382,7 @@ def _gauss_newton(p0, apex, goal, h, hopper: Hopper, sqrt_w, max_iter=16, cost_t
     for _ in range(max_iter):
         if not (cost_b > cost_tol and trust >= min_trust and not flat):
             break
-        r = _residual(trial_p, apex, goal, h, hopper, sqrt_w, terrain)
+        r = _residual(trial_p, apex, goal, h, hopper, sqrt_w, terrain, tol)
         if float(r @ r) < cost_b:
             flat = cost_b - float(r @ r) < stall * cost_b
             best, r_b, cost_b = trial_p, r, float(r @ r)
@@ -414,7 +416,7 @@ def _multi_start(apex, goal, h, hopper: Hopper, sqrt_w, method="gauss-newton", t
 
 def deadbeat_slip(apex, goal, h, hopper: Hopper, method: str = "gauss-newton",
                   terrain: Terrain | None = None, table=None, fallback=True,
-                  accept=1e-8, full=False):
+                  accept=1e-8, full=False, tol=SEARCH_RTOL):
     """Position-aware SLIP deadbeat `(u, ok)` from `apex` to `goal` over a foothold at `h`.
 
     `u = (th_td, kc, kd)` clipped to the limits; `ok` when no clipping was needed and the
@@ -427,6 +429,8 @@ def deadbeat_slip(apex, goal, h, hopper: Hopper, method: str = "gauss-newton",
         terrain: plan each trial on the block the foot lands on in this map (as JAX).
         table: `(values, grid)` of the SLIP table: the staged table-start solve (Gauss-Newton
             only), `fallback` and `accept` as in JAX. `full`: also the stage.
+        tol: rtol = atol of the trial strides (`DECISION_TOL` for a controller's decision;
+            Gauss-Newton with the table only, as in JAX).
     """
     apex, goal, h = np.asarray(apex, float), np.asarray(goal, float), float(h)
     sqrt_w = np.sqrt(np.array([W_POS, W_POS, W_VEL]))
@@ -437,11 +441,11 @@ def deadbeat_slip(apex, goal, h, hopper: Hopper, method: str = "gauss-newton",
         from ._slip_table import _staged
 
         best, _, stage = _staged(apex, goal, h, hopper, sqrt_w, table, terrain, fallback,
-                                 accept)
+                                 accept, tol)
     th, s = _clip_p(best)
     kc_lo, kc_hi = kc_limits(hopper)
     kc = kc_lo + s * (kc_hi - kc_lo)
-    _, code, kd = trial(apex, goal, h, th, kc, hopper, terrain=terrain)
+    _, code, kd = trial(apex, goal, h, th, kc, hopper, tol, tol, terrain)
     kc_c = min(max(kc, kc_lo), kc_hi)
     # As jnp.clip: +-inf clips to the limits, NaN stays NaN (then kc is used).
     kd_c = kd if math.isnan(kd) else min(max(kd, RATIO_LO * kc_c), RATIO_HI * kc_c)

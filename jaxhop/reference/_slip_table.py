@@ -21,10 +21,14 @@ from ._slip import W_POS, W_VEL, _gauss_newton, initial_guesses
 # Mirrors of jaxhop._slip_table constants.
 TABLE_STARTS = 3
 POLISH_ITER = 6
-POLISH_COST = 1e-14
 POLISH_MIN_TRUST = 1.0 / 64
 POLISH_STALL = 1e-3
 MULTI_ITER = 16
+
+
+def polish_cost(tol):
+    """C2 of an apex error of ten times the trial strides' tolerance (as JAX)."""
+    return (10.0 * tol) ** 2
 REFINE_STEPS = 12
 REFINE_MAX = np.array([0.1, 0.3])
 
@@ -121,7 +125,7 @@ def table_starts(values, grid, apex, goal, h, hopper: Hopper, n_starts=TABLE_STA
     return [refined[i][0] for i in order], [refined[i][1] for i in order]
 
 
-def _staged(apex, goal, h, hopper: Hopper, sqrt_w, table, terrain, fallback, accept):
+def _staged(apex, goal, h, hopper: Hopper, sqrt_w, table, terrain, fallback, accept, tol):
     """`jaxhop._slip_table._deadbeat_table`: one start at a time until one ends with
     C2 <= `accept` (the table's starts, best first, then with `fallback` the multi-start
     solver's starts, all with the polish's stops; only the latter where the table has no
@@ -134,13 +138,14 @@ def _staged(apex, goal, h, hopper: Hopper, sqrt_w, table, terrain, fallback, acc
     while i < n_all and cost > accept:
         if i < TABLE_STARTS:
             end, c = _gauss_newton(starts[i], apex, goal, h, hopper, sqrt_w, POLISH_ITER,
-                                   POLISH_COST, terrain, POLISH_MIN_TRUST, POLISH_STALL)
+                                   polish_cost(tol), terrain, POLISH_MIN_TRUST, POLISH_STALL,
+                                   tol)
         else:
             if guesses is None:
-                guesses = initial_guesses(apex, goal, h, hopper, terrain)
+                guesses = initial_guesses(apex, goal, h, hopper, terrain, tol)
             end, c = _gauss_newton(guesses[i - TABLE_STARTS], apex, goal, h, hopper, sqrt_w,
-                                   MULTI_ITER, POLISH_COST, terrain, POLISH_MIN_TRUST,
-                                   POLISH_STALL)
+                                   MULTI_ITER, polish_cost(tol), terrain, POLISH_MIN_TRUST,
+                                   POLISH_STALL, tol)
         if c < cost:
             best, cost = np.asarray(end, float), c
         i += 1
