@@ -319,10 +319,10 @@ def table_starts(table: SlipTable, apex, goal, h, hopper: Hopper, n_starts: int,
 # TABLE_STARTS refined starts, best first (stage 1: the first; stage 2: the others), then
 # (`fallback`) the multi-start solver's starts (`_initial_guesses`, stage 3). A table start's
 # polish stops at the trial strides' noise floor (`polish_cost`, or three rejected steps
-# in a row), on a target out of reach (an accepted
-# step that gains less than POLISH_STALL of C2), or after POLISH_ITER steps; a multi-start
-# one has the same stops after up to MULTI_ITER steps. One start at a time keeps a single
-# Gauss-Newton program in the compiled decision (a vmap per stage compiled one per stage).
+# in a row), on a target out of reach (an accepted step that gains less than POLISH_STALL
+# of C2), or after POLISH_ITER steps; a multi-start one has the same stops after up to
+# MULTI_ITER steps. One start at a time keeps a single Gauss-Newton program in the
+# compiled decision (a vmap per stage compiled one per stage).
 TABLE_STARTS = 3
 POLISH_ITER = 6
 POLISH_MIN_TRUST = 1.0 / 64

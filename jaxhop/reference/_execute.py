@@ -27,13 +27,14 @@ from ._model import (
     touchdown_one,
 )
 from ._plan import Plan
-from ._slip import DECISION_TOL, deadbeat_slip, slip_stride
+from ._slip import deadbeat_slip, slip_stride
 
 _BIG = np.iinfo(np.int32).max
 # Mirrors of jaxhop._execute's SLIP decision constants.
 SLIP_CANDIDATES = 2
 SLIP_ACCEPT = np.array([0.05, 0.05, 0.05])
 SLIP_STAGE_C2 = 1e-4  # jaxhop._models.SLIP_STAGE_C2
+DECISION_TOL = 1e-5  # rtol = atol of a decision's strides (jaxhop._slip_deadbeat)
 
 
 def slip_scales(hopper):

@@ -47,8 +47,7 @@ from ._model import (
 # Mirrors of jaxhop._slip / jaxhop._slip_deadbeat constants.
 RTOL = 1e-10
 ATOL = 1e-10
-SEARCH_RTOL = SEARCH_ATOL = 1e-8
-DECISION_TOL = 1e-5  # rtol = atol of a controller's decision (`DECISION_TOL` in JAX)
+SEARCH_TOL = 1e-8  # rtol = atol of the searches' trial strides
 PHASE_T_MAX = 5.0
 COLLAPSED = 0.25
 KAPPA_LO, KAPPA_HI = 10.0, 60.0
@@ -249,23 +248,22 @@ def _descent(apex, th, h, hopper: Hopper, terrain):
     return y_foot, v_td, h, reached
 
 
-def trial(apex, goal, h, th, kc, hopper: Hopper, rtol=SEARCH_RTOL, atol=SEARCH_ATOL,
-          terrain=None):
-    """Stride with `kd` from eq 12: `(next_apex, code, kd)` (as `_trial`); over flat ground
-    at `h`, or with `terrain` on the block the foot lands on."""
+def trial(apex, goal, h, th, kc, hopper: Hopper, tol=SEARCH_TOL, terrain=None):
+    """Stride with `kd` from eq 12 at rtol = atol = `tol`: `(next_apex, code, kd)` (as
+    `_trial`); over flat ground at `h`, or with `terrain` on the block the foot lands on."""
     y_foot, v_td, h, reached = _descent(apex, th, h, hopper, terrain)
-    x_b, code_c = compress(th, v_td, kc, hopper, rtol, atol)
+    x_b, code_c = compress(th, v_td, kc, hopper, tol, tol)
     kd = float(energy_kd(apex, goal, kc, x_b[0], hopper))
     kd_ok = kd > 0
     if code_c != OK:
         return np.full(3, np.nan), max(code_c, 1), kd
-    x_lo, code_d = decompress(x_b, kd if kd_ok else kc, hopper, rtol, atol)
+    x_lo, code_d = decompress(x_b, kd if kd_ok else kc, hopper, tol, tol)
     p_lo, v_lo = _cartesian(x_lo)
     code = code_d if (reached and kd_ok and v_lo[1] > 0) else max(code_d, 1)
     return ascent(p_lo + np.array([y_foot, h]), v_lo, hopper), code, kd
 
 
-def trial_speed(apex, goal, h, th, kc, hopper: Hopper, terrain=None, tol=SEARCH_RTOL):
+def trial_speed(apex, goal, h, th, kc, hopper: Hopper, terrain=None, tol=SEARCH_TOL):
     """The liftoff speed the inner search sees (`_trial`'s `speed`): `ydot_lo` when both
     stance phases complete, else `+-FAIL_SPEED` by the side the leg ended on."""
     _, v_td, _, _ = _descent(apex, th, h, hopper, terrain)
@@ -283,19 +281,18 @@ def _clip_p(p):
     return min(max(float(p[0]), TH_LO), TH_HI), min(max(float(p[1]), 0.0), 1.0)
 
 
-def _residual(p, apex, goal, h, hopper: Hopper, sqrt_w, terrain=None, tol=SEARCH_RTOL):
+def _residual(p, apex, goal, h, hopper: Hopper, sqrt_w, terrain=None, tol=SEARCH_TOL):
     """Weighted apex error of a trial stride at `p = (th_td, s)`, clipped to the bounds as
     the JAX solver clips its iterates; `1e3` where the trial fails."""
     if not np.all(np.isfinite(p)):
         return sqrt_w * 1e3
     th, s = _clip_p(p)
     kc_lo, kc_hi = kc_limits(hopper)
-    nxt, code, _ = trial(apex, goal, h, th, kc_lo + s * (kc_hi - kc_lo), hopper, tol, tol,
-                         terrain)
+    nxt, code, _ = trial(apex, goal, h, th, kc_lo + s * (kc_hi - kc_lo), hopper, tol, terrain)
     return sqrt_w * (nxt - goal) if code == OK else sqrt_w * 1e3
 
 
-def _bisect_th(apex, goal, h, kc, hopper: Hopper, terrain, tol=SEARCH_RTOL):
+def _bisect_th(apex, goal, h, kc, hopper: Hopper, terrain, tol=SEARCH_TOL):
     """`START_BISECTIONS` bisection steps of the inner problem on `[TH_LO, TH_HI]`."""
     lo, hi = TH_LO, TH_HI
     for _ in range(START_BISECTIONS):
@@ -307,7 +304,7 @@ def _bisect_th(apex, goal, h, kc, hopper: Hopper, terrain, tol=SEARCH_RTOL):
     return 0.5 * (lo + hi)
 
 
-def initial_guesses(apex, goal, h, hopper: Hopper, terrain=None, tol=SEARCH_RTOL):
+def initial_guesses(apex, goal, h, hopper: Hopper, terrain=None, tol=SEARCH_TOL):
     """The JAX solver's starts: for each `s` of 3, the best `th_td` of 9 on `[-0.5, 0.5]`,
     or the inner problem's short bisection where that costs less."""
     ths = np.linspace(-0.5, 0.5, 9)
@@ -338,7 +335,7 @@ def _jacobian(p, apex, goal, h, hopper: Hopper, sqrt_w, terrain=None):
 
     def res(th, s):
         nxt, code, _ = trial(apex, goal, h, th, kc_lo + s * (kc_hi - kc_lo), hopper,
-                             JAC_TOL, JAC_TOL, terrain)
+                             JAC_TOL, terrain)
         return sqrt_w * (nxt - goal) if code == OK else sqrt_w * 1e3
 
     base = res(p[0], p[1])
@@ -347,7 +344,7 @@ def _jacobian(p, apex, goal, h, hopper: Hopper, sqrt_w, terrain=None):
 
 
 def _gauss_newton(p0, apex, goal, h, hopper: Hopper, sqrt_w, max_iter=16, cost_tol=1e-16,
-                  terrain=None, min_trust=0.0, stall=0.0, tol=SEARCH_RTOL):
+                  terrain=None, min_trust=0.0, stall=0.0, tol=SEARCH_TOL):
     """`_deadbeat_gradient`'s damped Gauss-Newton, step for step: the step
     `(J'J + 1e-12 tr(J'J) I)^-1 J'r` times the trust scale, clipped to `MAX_STEP` per
     coordinate and the iterate to the bounds; a trial that does not lower C2 is rejected and
@@ -416,7 +413,7 @@ def _multi_start(apex, goal, h, hopper: Hopper, sqrt_w, method="gauss-newton", t
 
 def deadbeat_slip(apex, goal, h, hopper: Hopper, method: str = "gauss-newton",
                   terrain: Terrain | None = None, table=None, fallback=True,
-                  accept=1e-8, full=False, tol=SEARCH_RTOL):
+                  accept=1e-8, full=False, tol=SEARCH_TOL):
     """Position-aware SLIP deadbeat `(u, ok)` from `apex` to `goal` over a foothold at `h`.
 
     `u = (th_td, kc, kd)` clipped to the limits; `ok` when no clipping was needed and the
@@ -429,8 +426,7 @@ def deadbeat_slip(apex, goal, h, hopper: Hopper, method: str = "gauss-newton",
         terrain: plan each trial on the block the foot lands on in this map (as JAX).
         table: `(values, grid)` of the SLIP table: the staged table-start solve (Gauss-Newton
             only), `fallback` and `accept` as in JAX. `full`: also the stage.
-        tol: rtol = atol of the trial strides (`DECISION_TOL` for a controller's decision;
-            Gauss-Newton with the table only, as in JAX).
+        tol: rtol = atol of the table-start solve's trial strides (a decision's: 1e-5).
     """
     apex, goal, h = np.asarray(apex, float), np.asarray(goal, float), float(h)
     sqrt_w = np.sqrt(np.array([W_POS, W_POS, W_VEL]))
@@ -445,7 +441,7 @@ def deadbeat_slip(apex, goal, h, hopper: Hopper, method: str = "gauss-newton",
     th, s = _clip_p(best)
     kc_lo, kc_hi = kc_limits(hopper)
     kc = kc_lo + s * (kc_hi - kc_lo)
-    _, code, kd = trial(apex, goal, h, th, kc, hopper, tol, tol, terrain)
+    _, code, kd = trial(apex, goal, h, th, kc, hopper, tol, terrain)
     kc_c = min(max(kc, kc_lo), kc_hi)
     # As jnp.clip: +-inf clips to the limits, NaN stays NaN (then kc is used).
     kd_c = kd if math.isnan(kd) else min(max(kd, RATIO_LO * kc_c), RATIO_HI * kc_c)

@@ -24,13 +24,13 @@ POLISH_ITER = 6
 POLISH_MIN_TRUST = 1.0 / 64
 POLISH_STALL = 1e-3
 MULTI_ITER = 16
+REFINE_STEPS = 12
+REFINE_MAX = np.array([0.1, 0.3])
 
 
 def polish_cost(tol):
     """C2 of an apex error of ten times the trial strides' tolerance (as JAX)."""
     return (10.0 * tol) ** 2
-REFINE_STEPS = 12
-REFINE_MAX = np.array([0.1, 0.3])
 
 
 def _locate(x, lo, hi, n):
