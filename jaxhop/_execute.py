@@ -24,7 +24,7 @@ from ._models import bhop_stride as bhop_stride
 from ._models import in_global_domain as in_global_domain
 from ._models import model_for
 from ._params import Disturbance
-from ._plan import Plan
+from ._plan import Plan, bucketed
 from ._pool import pool_runs as _pool_runs
 from ._programs import stored_array
 from ._progress import Progress
@@ -98,7 +98,7 @@ def run_batch(plan: Plan, apex0, *, key=None, true_terrain: Terrain | None = Non
         store = _ChunkStore(checkpoint, fingerprint(plan, apex0, key, true_terrain,
                                                      disturbance, config, chunk))
     pending = []
-    consts = (tables, true_terrain, plan.hopper, disturbance, config)
+    consts = (*bucketed(tables, true_terrain), plan.hopper, disturbance, config)
     mine = process_chunks(-(-n // chunk))
     if model.pooled if pool is None else pool:
         return _run_pool(apex0, key, consts, config, n, chunk, mine, store, progress)
@@ -262,7 +262,7 @@ def slip_verified(apexes, plan: Plan, *, key=None, goal=None, max_steps: int = 6
     config = run_config(plan.goal if goal is None else goal, tolerance, max_steps, "slip",
                         controller)
     tables = plan.tables(slip=True)
-    consts = (tables, plan.terrain, plan.hopper, Disturbance(), config)
+    consts = (*bucketed(tables, plan.terrain), plan.hopper, Disturbance(), config)
 
     def first_strides():
         nxt = np.full((n, 3), np.nan)

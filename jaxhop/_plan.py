@@ -12,6 +12,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from . import _stages as S
+from ._batching import bucket, pad_terrain, pad_to, pow2_at_least
 from ._deploy import by_robustness, deploy
 from ._errors import InputError
 from ._graph import count_edges, situated_matrix
@@ -51,6 +52,45 @@ class PlanTables(eqx.Module):
     #: undeployed one (`best_inst` then names that one), `iinfo(int32).max` elsewhere.
     #: `None`: no holding.
     hold_pos: jnp.ndarray | None = None
+
+    def padded(self, n_blocks: int, n_seg: int, n_inst: int) -> PlanTables:
+        """These tables with room for `n_blocks` terrain blocks, `n_seg` segments and
+        `n_inst` instantiated policies, so that plans of similar size share one compiled
+        controller. The padding never matches: padded blocks have no length and no
+        segments, padded segments lie far off the map, and their situated policies have no
+        deployed policy."""
+        t = self.table
+        nb, ns = t.block_first.shape[0], t.seg_block.shape[0]
+        end = self.terrain.ends[-1]
+        table = SituatedTable(pad_to(t.centre, n_seg, jnp.array([1e6, 0.0])),
+                              pad_to(t.seg_block, n_seg, nb - 1),
+                              pad_to(t.edge_distance, n_seg, 0.0),
+                              pad_to(t.block_first, n_blocks, ns),
+                              pad_to(t.block_count, n_blocks, 0),
+                              pad_to(t.block_left, n_blocks, end))
+        k = n_seg * self.templates.n
+        big = jnp.iinfo(jnp.int32).max
+        hold = None if self.hold_pos is None else pad_to(self.hold_pos, k, big)
+        return PlanTables(table, self.templates, pad_terrain(self.terrain, n_blocks),
+                          pad_to(self.best_pos, k, big), pad_to(self.best_inst, k, 0),
+                          pad_to(self.goals, n_inst, 0.0), self.slip, hold)
+
+
+def bucketed(tables: PlanTables, true_terrain: Terrain) -> tuple[PlanTables, Terrain]:
+    """`tables` and the true map padded up to shape buckets (`PlanTables.padded`): the
+    blocks to a multiple of 32 (one spare at least), the segments to a multiple of 64, the
+    instantiated policies to a power of two. A SLIP controller takes minutes to compile;
+    with these buckets a perceived map, or another terrain of about the size of the
+    built-in ones, runs on the program compiled for the first (the maps lose their names,
+    which are static fields)."""
+    nb = bucket(max(tables.terrain.n_blocks, true_terrain.n_blocks) + 1, 32)
+    ns = bucket(tables.table.seg_block.shape[0], 64)
+    ni = pow2_at_least(tables.goals.shape[0])
+    tables = tables.padded(nb, ns, ni)
+    # The maps' names are static fields: a program keyed by them would not be shared.
+    unnamed = [Terrain(t.starts, t.ends, t.heights)
+               for t in (tables.terrain, pad_terrain(true_terrain, nb))]
+    return eqx.tree_at(lambda tb: tb.terrain, tables, unnamed[0]), unnamed[1]
 
 
 @dataclasses.dataclass

@@ -156,3 +156,41 @@ def test_cache_round_trip_and_corruption(tmp_path, monkeypatch, plan):
     rebuilt = get_plan(terrain, progress=False, log=messages.append)
     assert len(messages) == 1 and "corrupt" in messages[0]
     np.testing.assert_array_equal(rebuilt.order, first.order)
+
+
+def test_padded_tables_match_as_the_plans_own_and_share_one_shape(plan):
+    # Padding for one compiled controller must never match: first matches through the
+    # bucketed tables are the brute-force ones, recovery picks what the plan's own tables
+    # pick, and a foot landing exactly on the map's end (where the zero-length padded
+    # blocks begin) lands on the last real block.
+    from jaxhop._batching import pad_terrain
+    from jaxhop._plan import bucketed
+
+    tables, true = bucketed(plan.tables(), plan.terrain)
+    assert tables.goals.shape[0] > plan.goals.shape[0] and true.n_blocks > 1
+    rng = np.random.default_rng(5)
+    match = jax.jit(lambda z, tb: first_match(z, tb, plan.hopper, recover=True))
+    for _ in range(20):
+        z = np.array([rng.uniform(-0.2, 3.2), rng.uniform(1.15, 2.3), rng.uniform(-1.5, 1.5)])
+        padded = [int(x) for x in match(jnp.asarray(z), tables)]
+        inside = _domain_brute(z, plan)
+        deployed = [x for x in plan.order if int(plan.situated[x]) in inside]
+        found, _, a, recovered = padded
+        assert (found and not recovered) == bool(deployed)
+        assert not deployed or a == deployed[0]
+        assert padded == [int(x) for x in match(jnp.asarray(z), plan.tables())]
+    end = float(plan.terrain.ends[-1])
+    for terrain in (plan.terrain, pad_terrain(plan.terrain, 4)):
+        code, block, *_ = touchdown(jnp.array([end, 1.5, 0.0]), jnp.array([0.0, -1.0]),
+                                    terrain, plan.hopper)
+        assert (int(code), int(block)) == (OK, plan.terrain.n_blocks - 1)
+    # A plan on another map of about the same size (a step in it, another number of
+    # policies, another name) pads to the same shapes, so both run on one compiled program.
+    from jaxhop._terrain import make_terrain
+
+    other = build_plan(make_terrain([(0.0, 1.5, 0.0), (1.5, 3.0, 0.1)], (2.5, 1.4, 0.0)),
+                       progress=False)
+    assert other.goals.shape != plan.goals.shape
+    shapes = [jax.tree.map(jnp.shape, bucketed(p.tables(), p.terrain)) for p in (plan, other)]
+    assert jax.tree.structure(shapes[0]) == jax.tree.structure(shapes[1])
+    assert jax.tree.leaves(shapes[0]) == jax.tree.leaves(shapes[1])

@@ -32,7 +32,7 @@ from .._batching import bucket, pad_terrain, pad_to
 from .._models import decide, in_global_domain, model_for
 from .._params import NOISE_KINDS, Hopper, check_noise, disturbance_for
 from .._plan import PlanTables
-from .._policies import PairGrid, SituatedTable
+from .._policies import PairGrid
 from .._result import Result
 from .._runloop import Control, RunConfig, World, control_init, final_code, step
 from .._templates import template_scales
@@ -158,21 +158,9 @@ def _pad_tables(cp: CoursePlan, n_blocks: int, n_seg: int, n_inst: int,
                 slip: bool) -> PlanTables:
     tb = cp.plan.tables(slip=slip)
     hold_pos, best_inst = hold_tables(cp.plan)
-    t = tb.table
-    nb, ns = t.block_first.shape[0], t.seg_block.shape[0]
-    end = t.block_left[-1] * 0 + cp.plan.terrain.ends[-1]
-    table = SituatedTable(pad_to(t.centre, n_seg, jnp.array([1e6, 0.0])),
-                          pad_to(t.seg_block, n_seg, nb - 1),
-                          pad_to(t.edge_distance, n_seg, 0.0),
-                          pad_to(t.block_first, n_blocks, ns),
-                          pad_to(t.block_count, n_blocks, 0),
-                          pad_to(t.block_left, n_blocks, end))
-    k = n_seg * cp.plan.templates.n
-    big = jnp.iinfo(jnp.int32).max
-    return PlanTables(table, tb.templates, pad_terrain(tb.terrain, n_blocks),
-                      pad_to(tb.best_pos, k, big), pad_to(jnp.asarray(best_inst), k, 0),
-                      pad_to(tb.goals, n_inst, 0.0), tb.slip,
-                      hold_pos=pad_to(jnp.asarray(hold_pos), k, big))
+    held = PlanTables(tb.table, tb.templates, tb.terrain, tb.best_pos, jnp.asarray(best_inst),
+                      tb.goals, tb.slip, hold_pos=jnp.asarray(hold_pos))
+    return held.padded(n_blocks, n_seg, n_inst)
 
 
 def _forbidden(m: CourseMap, n: int) -> jnp.ndarray:
