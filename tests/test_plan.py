@@ -5,16 +5,17 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from jaxhop._batching import pad_terrain
 from jaxhop._cache import get_plan
 from jaxhop._deploy import check_order
 from jaxhop._execute import run_batch, sweep
 from jaxhop._flight import OK, SUCCESS, touchdown
 from jaxhop._models import first_match
 from jaxhop._params import Disturbance, disturbance_for
-from jaxhop._plan import build_plan
+from jaxhop._plan import bucketed, build_plan
 from jaxhop._regions import template_domain_contains
 from jaxhop._runloop import run_one
-from jaxhop._terrain import builtin_terrain, segments
+from jaxhop._terrain import builtin_terrain, make_terrain, segments
 
 
 @pytest.fixture(scope="module")
@@ -163,9 +164,6 @@ def test_padded_tables_match_as_the_plans_own_and_share_one_shape(plan):
     # bucketed tables are the brute-force ones, recovery picks what the plan's own tables
     # pick, and a foot landing exactly on the map's end (where the zero-length padded
     # blocks begin) lands on the last real block.
-    from jaxhop._batching import pad_terrain
-    from jaxhop._plan import bucketed
-
     tables, true = bucketed(plan.tables(), plan.terrain)
     assert tables.goals.shape[0] > plan.goals.shape[0] and true.n_blocks > 1
     rng = np.random.default_rng(5)
@@ -186,8 +184,6 @@ def test_padded_tables_match_as_the_plans_own_and_share_one_shape(plan):
         assert (int(code), int(block)) == (OK, plan.terrain.n_blocks - 1)
     # A plan on another map of about the same size (a step in it, another number of
     # policies, another name) pads to the same shapes, so both run on one compiled program.
-    from jaxhop._terrain import make_terrain
-
     other = build_plan(make_terrain([(0.0, 1.5, 0.0), (1.5, 3.0, 0.1)], (2.5, 1.4, 0.0)),
                        progress=False)
     assert other.goals.shape != plan.goals.shape
