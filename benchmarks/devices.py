@@ -1,5 +1,5 @@
 """BHop sweeps on one CPU device against several forced CPU devices
-(`benchmarks/README.md`, "Devices").
+(`docs/scaling.md`, "CPUs").
 
 Each device count runs in its own process (XLA reads `--xla_force_host_platform_device_count`
 once, at start-up). Every process loads the same cached plan for `reference`, runs each sweep
@@ -30,7 +30,8 @@ out = {"devices": len(jax.devices()), "n": int(init.shape[0]), "sweeps": {}}
 for noise in noises:
     dist = jaxhop.disturbance_for(noise)
     def sweep():
-        return jaxhop.run_batch(plan, init, key=jax.random.key(0), disturbance=dist)
+        return jaxhop.run_batch(plan, init, jaxhop.RunSettings(controller="paper"),
+                                key=jax.random.key(0), disturbance=dist)
     t0 = time.perf_counter(); r = sweep(); cold = time.perf_counter() - t0
     warm = []
     for _ in range(repeats):

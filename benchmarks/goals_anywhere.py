@@ -19,10 +19,8 @@ import time
 import jax
 import numpy as np
 
-from jaxhop._errors import InputError
-from jaxhop._execute import sweep
-from jaxhop._plan import build_plan
-from jaxhop._terrain import SEGMENT_LENGTH, random_terrain
+import jaxhop
+from jaxhop import SEGMENT_LENGTH, InputError, build_plan, random_terrain, sweep
 
 jax.config.update("jax_enable_x64", True)
 
@@ -55,7 +53,8 @@ def one(i, seed, length, dy, dz):
     row |= {"outcome": "planned", "n_goal_policies": plan.stats["n_goal_policies"],
             "n_deployed": plan.stats["n_deployed"]}
     try:
-        s, _, _ = sweep(plan, dy=dy, dz=dz)
+        s, _, _ = sweep(plan, jaxhop.RunSettings(controller="paper"),
+                        initial=jaxhop.SweepGrid(dy=dy, dz=dz))
         row |= {"n_initial": s["n_initial_conditions"], "success_rate": s["success_rate"],
                 "failures": {k: v for k, v in s["failures"].items() if v}}
     except InputError as err:

@@ -20,6 +20,7 @@ import numpy as np
 
 from jaxhop.mppc import (
     MPPC,
+    EnvData,
     Settings,
     list_courses,
     load_course,
@@ -27,7 +28,6 @@ from jaxhop.mppc import (
     reference_results,
     run_course,
 )
-from jaxhop.mppc._plan import _EnvData
 
 
 def _row(name, mode, out, ref):
@@ -89,7 +89,7 @@ def run_random(planner, n):
     for seed in range(n):
         course = random_course(seed)
         env = course.environment
-        reach = _EnvData(MPPC(planner.robot, Settings(grid=planner.settings.grid,
+        reach = EnvData(MPPC(planner.robot, Settings(grid=planner.settings.grid,
                                                       dead_ends="always")), course, env).reach
         result = run_course(course, planner)
         finished += result.finished

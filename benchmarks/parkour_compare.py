@@ -32,9 +32,14 @@ import numpy as np
 
 import jaxhop  # noqa: F401  (float64)
 from jaxhop.mppc import list_courses, load_course
-from jaxhop.parkour import leg_hopper, leg_templates, reactive_parkour
-from jaxhop.parkour._mppc_noise import run_mppc_noisy
-from jaxhop.parkour._run import course_plans
+from jaxhop.parkour import (
+    CourseRuns,
+    course_plans,
+    leg_hopper,
+    leg_templates,
+    reactive_parkour,
+    run_mppc_noisy,
+)
 
 NOISES = ("none", "wind", "sensor", "landing")
 
@@ -162,9 +167,10 @@ def main(argv=None) -> int:
                         if not noise:
                             continue
                         t0 = time.perf_counter()
-                        r = reactive_parkour(course, model=model, noise=noise, seed=args.seed,
-                                             runs=runs, hopper=hop, templates=tm_m, plans=cps,
-                                             controller=controller)
+                        settings = CourseRuns(model=model, controller=controller, noise=noise,
+                                              seed=args.seed, runs=runs)
+                        r = reactive_parkour(course, settings, hopper=hop, templates=tm_m,
+                                             plans=cps)
                         r.pop("executed")
                         r["seconds"] = time.perf_counter() - t0
                         out["rows"].append(r)
@@ -207,9 +213,13 @@ def timing(args) -> int:
     K slowest updates, `1:3:4`: those; each after an untimed build with the same padded
     shapes, so that none includes compilation): wall and CPU time, the ratio per snapshot,
     and whether each rebuild is identical to the update (`identical_plans`)."""
-    from jaxhop.parkour import build_course_plan, course_map
-    from jaxhop.parkour._build import _Context
-    from jaxhop.parkour._run import COURSE_GRID, identical_plans
+    from jaxhop.parkour import (
+        COURSE_GRID,
+        build_course_plan,
+        build_shape,
+        course_map,
+        identical_plans,
+    )
 
     hop = leg_hopper()
     tm = leg_templates(hop)
@@ -245,8 +255,7 @@ def timing(args) -> int:
         rb_wall, rb_cpu, equal, rb_stages, shapes = [], [], [], [], set()
         for k in picked:
             m, inc = maps[k], plans[k]
-            ctx = _Context(m, tm, hop)
-            shape = (ctx.jterrain.n_blocks, int(ctx.jtable.centre.shape[0]))
+            shape = build_shape(m, tm, hop)
             if shape not in shapes:  # compile the full build's chunk sizes for these shapes
                 build_course_plan(m, tm, hop, grid=COURSE_GRID)
                 shapes.add(shape)

@@ -20,8 +20,14 @@ import time
 import numpy as np
 
 from jaxhop.mppc import load_course
-from jaxhop.parkour import build_course_plan, course_map, leg_hopper, leg_templates
-from jaxhop.parkour._run import COURSE_GRID, identical_plans
+from jaxhop.parkour import (
+    COURSE_GRID,
+    build_course_plan,
+    course_map,
+    identical_plans,
+    leg_hopper,
+    leg_templates,
+)
 
 
 def main(argv=None) -> int:

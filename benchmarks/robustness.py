@@ -33,12 +33,11 @@ def sweep_one(model, noise, seed, controller, terrain, step, workdir, fresh=Fals
         argv += ["--dy", str(step), "--dz", str(step)]
     t0 = time.perf_counter()
     if fresh:
-        code = subprocess.call([sys.executable, "-c", "import sys; from jaxhop._cli import "
-                                "main; sys.exit(main(sys.argv[1:]))", *argv])
+        code = subprocess.call([sys.executable, "-m", "jaxhop", *argv])
     else:
-        from jaxhop._cli import main
+        import jaxhop
 
-        code = main(argv)
+        code = jaxhop.main(argv)
     if code != 0:
         raise SystemExit(f"jaxhop {' '.join(argv)} exited with {code}")
     with open(path) as f:

@@ -24,7 +24,7 @@ Benchmarks:
   (diffrax, vmapped, chunks of 512 over the CPU devices), twin `solve_ivp` with events in
   a loop over all of them (`--quick`: every 4-th, scaled per item; codes and apexes are
   checked).
-- `slip_table`: the SLIP deadbeat's start table built anew (`jaxhop._slip_table`), time
+- `slip_table`: the SLIP deadbeat's start table built anew (`jaxhop.slip.build_table`), time
   only (the twin reads the same table).
 - `slip_deadbeat`: 1 024 deadbeat solves to reachable targets; JAX `deadbeat_slips` (the
   table start and Gauss-Newton polish through diffrax, in passes over the targets that
@@ -55,11 +55,17 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxhop
-from jaxhop import Hopper, build_plan, builtin_terrain, paper_templates
+from jaxhop import (
+    Hopper,
+    build_plan,
+    builtin_terrain,
+    chunked_map,
+    decide,
+    paper_templates,
+    run_batch,
+    sweep_grid,
+)
 from jaxhop import reference as R
-from jaxhop._batching import chunked_map
-from jaxhop._execute import run_batch, sweep_grid
-from jaxhop._models import decide
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 
@@ -168,7 +174,8 @@ def bench_bhop_sweep(jp, quick: bool):
     terrain = jp.terrain
     grid = sweep_grid(terrain)
     initial = grid[jaxhop.in_global_domain(grid, jp.tables(), Hopper())]
-    first, warm, out = timed(lambda: run_batch(jp, initial), 2 if quick else 3)
+    paper = jaxhop.RunSettings(controller="paper")
+    first, warm, out = timed(lambda: run_batch(jp, initial, paper), 2 if quick else 3)
     rt, rtm = to_reference(terrain, jp.templates)
     ctrl = R.Controller(reference_plan_with(jp, R.situate(rt, rtm, R.Hopper())))
     t0 = time.perf_counter()
@@ -219,7 +226,7 @@ def bench_decision(jp):
 
 def random_slip_strides(seed, n):
     """Random admissible SLIP strides over flat ground at 0 (as docs/slip.md)."""
-    from jaxhop._slip_deadbeat import KAPPA_HI, KAPPA_LO, RATIO_HI, RATIO_LO
+    from jaxhop.slip import KAPPA_HI, KAPPA_LO, RATIO_HI, RATIO_LO
 
     hopper = Hopper()
     mg = hopper.m * hopper.g / hopper.rho0
@@ -233,9 +240,9 @@ def random_slip_strides(seed, n):
 
 
 def bench_slip_strides(quick: bool):
-    from jaxhop._slip import slip_strides
-    from jaxhop._terrain import make_terrain
+    from jaxhop import make_terrain
     from jaxhop.reference import _slip as RS
+    from jaxhop.slip import slip_strides
 
     n = 4096
     blocks = [(-20.0, 20.0, 0.0)]
@@ -265,7 +272,7 @@ def bench_slip_strides(quick: bool):
 
 
 def bench_slip_table():
-    from jaxhop._slip_table import DEFAULT_GRID, build_table
+    from jaxhop.slip import DEFAULT_GRID, build_table
 
     t0 = time.perf_counter()
     values = build_table(DEFAULT_GRID, progress=False)
@@ -280,7 +287,7 @@ def bench_slip_table():
 
 def slip_targets(n):
     """`n` reachable SLIP targets: apexes of random admissible strides over flat ground."""
-    from jaxhop._slip import slip_apex_map
+    from jaxhop.slip import slip_apex_map
 
     apex, u = random_slip_strides(1, 2 * n)
     goal, code = jax.jit(jax.vmap(slip_apex_map, (0, 0, None, None)))(
@@ -292,7 +299,7 @@ def slip_targets(n):
 def within_1mm(apex, goal, u):
     """Which controls `u` take `apex` to within 1 mm and 1 mm/s of `goal` (strides at the
     simulation's tolerance)."""
-    from jaxhop._slip import slip_apex_map
+    from jaxhop.slip import slip_apex_map
 
     nxt, code = jax.jit(jax.vmap(slip_apex_map, (0, 0, None, None)))(
         jnp.asarray(apex), jnp.asarray(u), 0.0, Hopper())
@@ -301,9 +308,7 @@ def within_1mm(apex, goal, u):
 
 
 def bench_slip_deadbeat(quick: bool):
-    from jaxhop._slip_deadbeat import deadbeat_slip
-    from jaxhop._slip_table import deadbeat_slips, slip_table
-    from jaxhop.reference import _slip as RS
+    from jaxhop.slip import deadbeat_slip, deadbeat_slips, slip_table
 
     n = 1024
     hopper = Hopper()
@@ -321,8 +326,8 @@ def bench_slip_deadbeat(quick: bool):
     sub = np.arange(0, n, every)
     rtab = table.data()
     t0 = time.perf_counter()
-    ref = [RS.deadbeat_slip(apex[i], goal[i], 0.0, R.Hopper(), table=rtab, full=True)
-           for i in sub]
+    search = R.DeadbeatSearch(table=rtab)
+    ref = [R.deadbeat_slip(apex[i], goal[i], 0.0, R.Hopper(), search, full=True) for i in sub]
     numpy_s = (time.perf_counter() - t0) * n / sub.size
     du = np.array([np.max(np.abs(r[0] - ju[i]) / np.maximum(1.0, np.abs(ju[i])))
                    for r, i in zip(ref, sub)])
@@ -348,7 +353,7 @@ def bench_slip_deadbeat(quick: bool):
 def bench_slip_decision(jp):
     """One SLIP decision (first matches, staged table-start deadbeat, prediction) for one
     measured apex, as the run loop makes it; latency of a single call."""
-    from jaxhop._models import decide_slip
+    from jaxhop.slip import decide_slip
 
     tables = jp.tables(slip=True)
     hopper = Hopper()
@@ -396,7 +401,8 @@ def bench_slip_sweep(jp, quick: bool):
     # about 1 s): an evenly spaced subsample of what JAX ran; both compared per run.
     n_jax = 64 if quick else min(256, n_all)
     runs = initial[np.linspace(0, n_all - 1, n_jax).round().astype(int)]
-    first, warm, out = timed(lambda: run_batch(jp, runs, model="slip"), 1)
+    slip_paper = jaxhop.RunSettings(model="slip", controller="paper")
+    first, warm, out = timed(lambda: run_batch(jp, runs, slip_paper), 1)
     n_ref = 8
     pick = np.linspace(0, n_jax - 1, n_ref).round().astype(int)
     rt, rtm = to_reference(terrain, jp.templates)

@@ -27,7 +27,7 @@ import jax.numpy as jnp  # noqa: E402
 from scipy.optimize import least_squares  # noqa: E402
 
 from jaxhop import Hopper  # noqa: E402
-from jaxhop._slip import flat_touchdown, slip_apex_map  # noqa: E402
+from jaxhop.slip import flat_touchdown, slip_apex_map  # noqa: E402
 
 
 def sample(n: int, seed: int, hopper: Hopper):

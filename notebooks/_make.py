@@ -17,7 +17,7 @@ import jax
 import numpy as np
 
 import jaxhop
-from jaxhop import _plot
+from jaxhop import plot as _plot
 
 # CI runs the notebooks with JAXHOP_NB_QUICK=1 (coarser sweep grids).
 QUICK = bool(os.environ.get("JAXHOP_NB_QUICK"))
@@ -69,7 +69,7 @@ therefore moves to a strictly earlier policy, and without disturbances every sta
 global domain reaches the goal."""),
         ("code", '''print("deployment invariant holds:",
       jaxhop.check_order(plan.order, plan.prepares, plan.situated, plan.is_goal))
-summary, initial, result = jaxhop.sweep(plan, dy=STEP, dz=STEP)
+summary, initial, result = jaxhop.sweep(plan, initial=jaxhop.SweepGrid(dy=STEP, dz=STEP))
 assert summary["success_rate"] == 1.0
 summary'''),
     ],
@@ -87,9 +87,10 @@ plan = jaxhop.get_plan(terrain, progress=False)
 
 
 def sweep(noise, controller, plan=plan, true_terrain=None):
-    s, initial, r = jaxhop.sweep(plan, disturbance=jaxhop.disturbance_for(noise),
-                                 key=jax.random.key(0), dy=STEP, dz=STEP,
-                                 true_terrain=true_terrain, controller=controller)
+    s, initial, r = jaxhop.sweep(plan, jaxhop.RunSettings(controller=controller),
+                                 initial=jaxhop.SweepGrid(dy=STEP, dz=STEP),
+                                 key=jax.random.key(0), true_terrain=true_terrain,
+                                 disturbance=jaxhop.disturbance_for(noise))
     _plot.doa_figure(true_terrain or terrain, initial, r["code"], r["steps"], plan.goal,
                      f"{'ground' if true_terrain else noise} noise, {controller} controller")
     return s, initial, r'''),
@@ -161,7 +162,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 import jaxhop
-from jaxhop import _plot
+from jaxhop import plot as _plot
 
 # CI runs the notebooks with JAXHOP_NB_QUICK=1 (smaller batches, one terrain).
 QUICK = bool(os.environ.get("JAXHOP_NB_QUICK"))
@@ -243,8 +244,10 @@ at the goal's velocity) at each apex, as in the paper's Figs. 13 and 19."""),
     ("code", '''terrain = jaxhop.builtin_terrain("reference")
 plan = jaxhop.get_plan(terrain, progress=False)
 starts = np.array([[0.6, 1.6, 0.5], [3.6, 1.5, 0.5]])
-slip = jaxhop.run_batch(plan, starts, model="slip", key=jax.random.key(0))
-bhop = jaxhop.run_batch(plan, starts, key=jax.random.key(0))
+paper = jaxhop.RunSettings(controller="paper")  # the paper's controller, Fig. 8
+slip = jaxhop.run_batch(plan, starts, jaxhop.RunSettings(model="slip", controller="paper"),
+                        key=jax.random.key(0))
+bhop = jaxhop.run_batch(plan, starts, paper, key=jax.random.key(0))
 slip_runs = [{k: v[i] for k, v in slip.items()} for i in range(len(starts))]
 bhop_runs = [{k: v[i] for k, v in bhop.items()} for i in range(len(starts))]
 fig = _plot.runs_figure(terrain, bhop_runs, plan.goal, "BHop on 'reference'", plan=plan)
@@ -270,7 +273,8 @@ the SLIP stride actually reached. (With `JAXHOP_NB_QUICK=1` this cell reuses the
 else:
     long_plan = jaxhop.get_plan(jaxhop.builtin_terrain("long"), progress=False)
     start = [1.65, 1.1, 0.5]  # in the deep well
-    r = jaxhop.run_batch(long_plan, [start], model="slip", key=jax.random.key(0))
+    slip_paper = jaxhop.RunSettings(model="slip", controller="paper")
+    r = jaxhop.run_batch(long_plan, [start], slip_paper, key=jax.random.key(0))
     long_run = {k: v[0] for k, v in r.items()}
 fig = _plot.long_run_figure(long_plan, long_run, "slip")
 steps = int(long_run["steps"])
@@ -372,7 +376,6 @@ import numpy as np
 
 import jaxhop
 from jaxhop import mujoco as mj
-from jaxhop._execute import sweep_initial
 
 # CI runs the notebooks with JAXHOP_NB_QUICK=1 (fewer runs, in this process).
 QUICK = bool(os.environ.get("JAXHOP_NB_QUICK"))
@@ -391,13 +394,13 @@ print(jaxhop.Result(run["code"]).name.lower(), run["why"], "after", run["steps"]
 fig = mj.trajectory_figure(terrain, run, trajectory, plan.goal)'''),
     ("md", """## The same states in both simulators
 
-`sweep_initial(plan, runs=n)` picks `n` evenly spaced states of the sweep grid in the
+`sweep_initial(plan, SweepGrid(runs=n))` picks `n` evenly spaced states of the sweep grid in the
 global domain (`jaxhop sweep --runs n` does the same). Each runs in MuJoCo (over
 processes, one per core) and in jaxhop's SLIP model, with the same controller and the
 same noise draws."""),
-    ("code", '''states = sweep_initial(plan, runs=4 if QUICK else 64)
+    ("code", '''states = jaxhop.sweep_initial(plan, jaxhop.SweepGrid(runs=4 if QUICK else 64))
 mujoco_runs = mj.run_many(job, states, processes=1 if QUICK else None)
-slip_runs = jaxhop.run_batch(plan, states, model="slip", controller="adaptive",
+slip_runs = jaxhop.run_batch(plan, states, jaxhop.RunSettings(model="slip"),
                              key=jax.random.key(0))
 for name, r in (("MuJoCo", mujoco_runs), ("jaxhop SLIP", slip_runs)):
     ok = r["code"] == 0

@@ -32,13 +32,11 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 import jaxhop
-from jaxhop._policies import PairGrid
-from jaxhop._templates import dimensionless_templates, paper_templates, scaled_templates
+from jaxhop import PairGrid, dimensionless_templates, paper_templates, scaled_templates
 from jaxhop.mppc import course_from_dict, load_course
 from jaxhop.parkour import build_course_plan, course_map, leg_hopper, leg_templates
-from jaxhop.parkour._mppc_noise import run_mppc_noisy
-from jaxhop.parkour._run import (COURSE_GRID, course_plans, initial_states, pad_plans,
-                                 run_reactive, same_deployment)
+from jaxhop.parkour import (COURSE_GRID, course_plans, initial_states, pad_plans,
+                            run_mppc_noisy, run_reactive, same_deployment)
 
 # CI runs the notebooks with JAXHOP_NB_QUICK=1: a short course and a coarse grid.
 QUICK = bool(os.environ.get("JAXHOP_NB_QUICK"))
@@ -111,7 +109,7 @@ noise; MPPC gets the same ones (`docs/parkour_reactive.md`)."""),
 apex0, coverage = initial_states(cps, padded, RUNS, 0, hop)
 rows = []
 for noise in ("none", "wind", "sensor", "landing"):
-    res = run_reactive(cps, padded, apex0, hopper=hop, noise=noise, seed=1)
+    res = run_reactive(cps, padded, apex0, hopper=hop, noise=noise, seed=1, controller="paper")
     ok = res["code"] == 0
     mppc = [run_mppc_noisy(course, noise, s) for s in ([0] if noise == "none" else range(4))]
     rows.append((noise, ok.mean(), res["steps"][ok].mean() if ok.any() else float("nan"),
@@ -121,7 +119,7 @@ print(f"coverage of the start box: {coverage:.2f}")
 print("noise     reactive success  strides | mppc success  jumps")
 for r in rows:
     print(f"{r[0]:8s}  {r[1]:16.2f}  {r[2]:7.1f} | {r[3]:12.2f}  {r[4]:5.1f}")'''),
-    ("code", '''res = run_reactive(cps, padded, apex0[:1], hopper=hop)
+    ("code", '''res = run_reactive(cps, padded, apex0[:1], hopper=hop, controller="paper")
 m = run_mppc_noisy(course, "none")
 fig, ax = plt.subplots(figsize=(10, 2.5))
 for (s, e, h), k in zip(cmap.true.blocks(), cmap.kind):

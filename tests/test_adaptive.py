@@ -6,21 +6,22 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxhop._bhop import deadbeat_bhop
-from jaxhop._cache import get_plan
-from jaxhop._execute import run_batch, sweep_grid
-from jaxhop._flight import OK
-from jaxhop._models import (
+import jaxhop
+from jaxhop._control.decisions import (
     RECOVERY_DISTANCE,
     bhop_stride,
     domain_distance,
     first_match,
     in_global_domain,
 )
-from jaxhop._observer import after_stride, observe, observer_init
-from jaxhop._params import Disturbance, Hopper
-from jaxhop._runloop import RunConfig
-from jaxhop._terrain import builtin_terrain, make_terrain
+from jaxhop._control.observer import after_stride, observe, observer_init
+from jaxhop._control.runloop import RunConfig
+from jaxhop._core.params import Disturbance, Hopper
+from jaxhop._core.terrain import builtin_terrain, make_terrain
+from jaxhop._execution.batches import run_batch, sweep_grid
+from jaxhop._models.bhop import deadbeat_bhop
+from jaxhop._models.flight import OK
+from jaxhop._planning.cache import get_plan
 
 HOP = Hopper()
 # A long flat floor: strides of about 0.5 m for 40 strides.
@@ -132,7 +133,8 @@ def test_adaptive_equals_paper_without_disturbance(flat_plan):
     grid = sweep_grid(flat_plan.terrain, dy=0.2, dz=0.2)
     initial = grid[in_global_domain(grid, flat_plan.tables(), flat_plan.hopper)]
     assert initial.shape[0] > 20
-    runs = {c: run_batch(flat_plan, initial, disturbance=Disturbance(), controller=c)
+    runs = {c: run_batch(flat_plan, initial, jaxhop.RunSettings(controller=c),
+                         disturbance=Disturbance())
             for c in ("paper", "adaptive")}
     for k in ("code", "steps", "apexes", "footholds", "policies"):
         np.testing.assert_array_equal(runs["paper"][k], runs["adaptive"][k])
@@ -140,7 +142,7 @@ def test_adaptive_equals_paper_without_disturbance(flat_plan):
 
 
 def test_controller_option_is_checked():
-    from jaxhop._errors import InputError
+    from jaxhop._core.errors import InputError
 
     with pytest.raises(InputError):
         RunConfig(goal=jnp.zeros(3), controller="smart")
@@ -154,7 +156,7 @@ MG = float(HOP.m * HOP.g)
 def _slip_targets(wind, n, seed):
     """Apexes and the apexes that random admissible SLIP controls reach from them over flat
     ground at 0 in the `wind`: reachable goals by construction."""
-    from jaxhop._slip import STRIDE_TOL, slip_apex_map
+    from jaxhop._models.slip.stride import STRIDE_TOL, slip_apex_map
 
     rng = np.random.default_rng(seed)
     apex = np.stack([rng.uniform(0, 1, n), rng.uniform(1.1, 1.4, n), rng.uniform(0.5, 2.5, n)],
@@ -169,8 +171,8 @@ def _slip_targets(wind, n, seed):
 
 
 def test_slip_adaptive_deadbeat_reaches_the_goal_in_the_wind():
-    from jaxhop._slip import slip_stride
-    from jaxhop._slip_deadbeat import deadbeat_slip
+    from jaxhop._models.slip.deadbeat import deadbeat_slip
+    from jaxhop._models.slip.stride import slip_stride
 
     wind = 0.3
     apex, goal, _, fly = _slip_targets(wind, 3, 3)
@@ -192,8 +194,8 @@ def test_slip_adaptive_deadbeat_reaches_the_goal_in_the_wind():
 def _slip_observer_loop(wind, n, seed):
     """`n` SLIP strides with random admissible controls in the true `wind`; the observer's
     estimate after each stride's apex."""
-    from jaxhop._models import SLIP
-    from jaxhop._slip import slip_stride
+    from jaxhop._control.decisions import SLIP
+    from jaxhop._models.slip.stride import slip_stride
 
     rng = np.random.default_rng(seed)
     update = jax.jit(lambda o, m, s, h: SLIP.observe(o, m, s, h))
@@ -221,7 +223,7 @@ def test_slip_observer_converges_to_a_constant_wind():
 
 
 def test_descent_measurement_gives_the_wind_before_the_first_touchdown():
-    from jaxhop._observer import observe_descent
+    from jaxhop._control.observer import observe_descent
 
     obs = observer_init()
     # No sensor noise: one velocity change over 0.2 s of descent gives the wind.

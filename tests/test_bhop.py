@@ -2,8 +2,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxhop._bhop import bhop_apex_map, deadbeat_bhop, descent, stance
-from jaxhop._params import Hopper
+from jaxhop._core.params import Hopper
+from jaxhop._models.bhop import bhop_apex_map, deadbeat_bhop, descent, stance
 
 HOP = Hopper()
 

@@ -10,11 +10,12 @@ import jax
 import numpy as np
 import pytest
 
-from jaxhop import _execute
-from jaxhop._execute import run_batch
-from jaxhop._params import disturbance_for
-from jaxhop._plan import build_plan
-from jaxhop._terrain import builtin_terrain
+from jaxhop._core.params import disturbance_for
+from jaxhop._core.terrain import builtin_terrain
+from jaxhop._execution import batches as _execute
+from jaxhop._execution.batches import run_batch
+from jaxhop._execution.settings import ExecSettings, RunSettings
+from jaxhop._planning.plan import build_plan
 
 
 @pytest.fixture(scope="module")
@@ -31,11 +32,19 @@ def _same(a, b):
                                                                                    nan=-7.0))
 
 
-def _interrupt_after(n_saves, monkeypatch, plan, init, **kw):
+PAPER = RunSettings(controller="paper")
+
+
+def _in_chunks(**execution):
+    """Chunks of 16 runs, with `execution`'s other settings."""
+    return ExecSettings(chunk=16, **execution)
+
+
+def _interrupt_after(n_saves, monkeypatch, plan, init, execution, **kw):
     """`run_batch` with a checkpoint, interrupted at its `n_saves + 1`-th chunk save (what
     SIGINT does in the middle of a sweep); returns the saved chunks' sizes."""
     saved = []
-    real_save = _execute._ChunkStore.save
+    real_save = _execute.ChunkStore.save
 
     def interrupt(self, start, stop, arrays):
         if len(saved) == n_saves:
@@ -43,18 +52,18 @@ def _interrupt_after(n_saves, monkeypatch, plan, init, **kw):
         real_save(self, start, stop, arrays)
         saved.append(stop - start)
 
-    monkeypatch.setattr(_execute._ChunkStore, "save", interrupt)
+    monkeypatch.setattr(_execute.ChunkStore, "save", interrupt)
     with pytest.raises(KeyboardInterrupt):
-        run_batch(plan, init, **kw)
-    monkeypatch.setattr(_execute._ChunkStore, "save", real_save)
+        run_batch(plan, init, execution=execution, **kw)
+    monkeypatch.setattr(_execute.ChunkStore, "save", real_save)
     return saved
 
 
 def test_interrupted_sweep_resumes(setup, tmp_path, monkeypatch):
     plan, init = setup
-    kw = dict(key=jax.random.key(3), disturbance=disturbance_for("sensor"), chunk=16)
-    full = run_batch(plan, init, **kw)
-    _interrupt_after(3, monkeypatch, plan, init, checkpoint=str(tmp_path), **kw)
+    kw = dict(settings=PAPER, key=jax.random.key(3), disturbance=disturbance_for("sensor"))
+    full = run_batch(plan, init, execution=_in_chunks(), **kw)
+    _interrupt_after(3, monkeypatch, plan, init, _in_chunks(checkpoint=str(tmp_path)), **kw)
 
     # A chunk killed while being written leaves only a temporary file; a torn chunk file
     # is ignored and recomputed.
@@ -64,20 +73,21 @@ def test_interrupted_sweep_resumes(setup, tmp_path, monkeypatch):
     files[-1].write_bytes(files[-1].read_bytes()[:50])
 
     computed = []
-    real_jit = _execute._batch_jit
+    real_jit = _execute.batch_jit
 
     def counting(*args):
         computed.append(1)
         return real_jit(*args)
 
-    monkeypatch.setattr(_execute, "_batch_jit", counting)
-    resumed = run_batch(plan, init, checkpoint=str(tmp_path), **kw)
+    monkeypatch.setattr(_execute, "batch_jit", counting)
+    resumed = run_batch(plan, init, execution=_in_chunks(checkpoint=str(tmp_path)), **kw)
     n_chunks = -(-len(init) // 16)
     assert len(computed) == n_chunks - 2  # the two intact chunks were not recomputed
     _same(full, resumed)
     # Other inputs never reuse these chunks.
     computed.clear()
-    run_batch(plan, init, checkpoint=str(tmp_path), **{**kw, "key": jax.random.key(4)})
+    run_batch(plan, init, execution=_in_chunks(checkpoint=str(tmp_path)),
+              **{**kw, "key": jax.random.key(4)})
     assert len(computed) == n_chunks
 
 
@@ -85,20 +95,21 @@ def test_interrupted_pool_sweep_resumes(setup, tmp_path, monkeypatch):
     # The lane pool (SLIP sweeps' executor) saves a chunk when its last run ends; an
     # interrupted pool sweep resumes with only the missing runs and equals the chunked one.
     plan, init = setup
-    kw = dict(key=jax.random.key(3), disturbance=disturbance_for("sensor"), chunk=16)
-    full = run_batch(plan, init, **kw)
-    saved = _interrupt_after(2, monkeypatch, plan, init, checkpoint=str(tmp_path), pool=True,
-                             **kw)
+    kw = dict(settings=PAPER, key=jax.random.key(3), disturbance=disturbance_for("sensor"))
+    full = run_batch(plan, init, execution=_in_chunks(), **kw)
+    saved = _interrupt_after(2, monkeypatch, plan, init,
+                             _in_chunks(checkpoint=str(tmp_path), pool=True), **kw)
 
     computed = []
-    real_pool = _execute._pool_runs
+    real_pool = _execute.pool_runs
 
     def counting(runs, *args, **kwargs):
         computed.append(len(runs))
         return real_pool(runs, *args, **kwargs)
 
-    monkeypatch.setattr(_execute, "_pool_runs", counting)
-    resumed = run_batch(plan, init, checkpoint=str(tmp_path), pool=True, **kw)
+    monkeypatch.setattr(_execute, "pool_runs", counting)
+    resumed = run_batch(plan, init, execution=_in_chunks(checkpoint=str(tmp_path), pool=True),
+                        **kw)
     assert computed == [len(init) - sum(saved)] and len(saved) == 2
     _same(full, resumed)
 
@@ -107,7 +118,7 @@ def test_interrupted_pool_sweep_resumes(setup, tmp_path, monkeypatch):
 def test_sigkill_then_rerun_from_cli(tmp_path):
     env = dict(os.environ, JAXHOP_CACHE=str(tmp_path / "cache"))
     ck = tmp_path / "ck"
-    base = [sys.executable, "-m", "jaxhop._cli", "sweep", "--terrain", "flat", "--noise",
+    base = [sys.executable, "-m", "jaxhop", "sweep", "--terrain", "flat", "--noise",
             "sensor", "--dy", "0.05", "--dz", "0.05", "--chunk", "8", "--seed", "2"]
     ref = tmp_path / "ref.json"
     subprocess.run(base + ["--json", str(ref)], env=env, check=True, capture_output=True,

@@ -3,7 +3,7 @@ import math
 
 import pytest
 
-from jaxhop._cli import main
+from jaxhop._cli.main import main
 
 
 @pytest.mark.parametrize("content, needle", [
@@ -60,8 +60,8 @@ def test_step_bhop_matches_closed_form(tmp_path):
     import jax.numpy as jnp
     import numpy as np
 
-    from jaxhop._bhop import bhop_apex_map
-    from jaxhop._params import Hopper
+    from jaxhop._core.params import Hopper
+    from jaxhop._models.bhop import bhop_apex_map
 
     out = tmp_path / "s.json"
     assert main(["step", "--model", "bhop", "--apex", "0.2,1.4,0.8", "--controls",
@@ -114,7 +114,7 @@ def _step_args(model, apex, controls, terrain=None):
 
 def test_step_accepts_a_slip_apex_whose_foot_is_above_the_ground(tmp_path):
     """0.38 rad at z = 1.0: the leg reaches down only 1 cos(0.38) = 0.929 m."""
-    from jaxhop._cli_args import check_step_args
+    from jaxhop._cli.args import check_step_args
 
     assert check_step_args(_step_args("slip", (0, 1.0, 5.0), (0.38, 20000, 20000))) is not None
     out = tmp_path / "s.json"
@@ -129,10 +129,10 @@ def test_step_apex_check_is_the_slip_descent_reaching_the_ground(th):
     `flat_touchdown`), on either side of the threshold."""
     import jax.numpy as jnp
 
-    from jaxhop._cli_args import check_step_args
-    from jaxhop._errors import InputError
-    from jaxhop._params import Hopper
-    from jaxhop._slip import flat_touchdown
+    from jaxhop._cli.args import check_step_args
+    from jaxhop._core.errors import InputError
+    from jaxhop._core.params import Hopper
+    from jaxhop._models.slip.stride import flat_touchdown
 
     for dz in (-1e-3, 1e-3):
         z = math.cos(th) + dz
@@ -148,8 +148,8 @@ def test_step_apex_check_is_the_slip_descent_reaching_the_ground(th):
 
 def test_step_foot_under_a_block_edge_is_checked_where_the_foot_is(tmp_path):
     """A SLIP foot swung over a higher block is checked against that block's top."""
-    from jaxhop._cli_args import check_step_args
-    from jaxhop._errors import InputError
+    from jaxhop._cli.args import check_step_args
+    from jaxhop._core.errors import InputError
 
     path = tmp_path / "t.json"
     path.write_text('{"blocks": [{"start": -2, "end": 0.2, "height": 0}, '
@@ -171,7 +171,7 @@ def test_step_foot_under_a_block_edge_is_checked_where_the_foot_is(tmp_path):
 def test_combined_noise_is_the_fieldwise_combination():
     import numpy as np
 
-    from jaxhop._params import Hopper, disturbance_for, has_ground
+    from jaxhop._core.params import Hopper, disturbance_for, has_ground
 
     for hopper in (None, Hopper(m=30.0, g=5.0, rho0=0.5)):
         wind, sensor = disturbance_for("wind", hopper), disturbance_for("sensor", hopper)
@@ -196,8 +196,8 @@ def test_combined_noise_is_the_fieldwise_combination():
     ("Wind", "invalid choice 'Wind'"),
 ])
 def test_bad_noise_combinations_are_refused(capsys, noise, needle):
-    from jaxhop._errors import InputError
-    from jaxhop._params import disturbance_for
+    from jaxhop._core.errors import InputError
+    from jaxhop._core.params import disturbance_for
 
     with pytest.raises(InputError, match="noise: "):
         disturbance_for(noise)
@@ -210,7 +210,7 @@ def test_bad_noise_combinations_are_refused(capsys, noise, needle):
 
 
 def test_noise_lists_parse_on_every_command():
-    from jaxhop._cli import build_parser
+    from jaxhop._cli.main import build_parser
 
     parser = build_parser()
     for cmd in (["sweep"], ["run"]):

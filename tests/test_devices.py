@@ -13,12 +13,14 @@ import numpy as np, jaxhop
 plan = jaxhop.build_plan(jaxhop.builtin_terrain("flat"), progress=False)
 grid = jaxhop.sweep_grid(plan.terrain, dy=0.1, dz=0.1)
 init = grid[jaxhop.in_global_domain(grid, plan.tables(), plan.hopper)]
-r = jaxhop.run_batch(plan, init, key=jax.random.key(5),
+paper = jaxhop.RunSettings(controller="paper")
+r = jaxhop.run_batch(plan, init, paper, key=jax.random.key(5),
                      disturbance=jaxhop.disturbance_for("sensor"))
 # The same runs through the lane pool (one host thread per device, lanes refilled
 # between strides), which SLIP sweeps use.
-p = jaxhop.run_batch(plan, init, key=jax.random.key(5),
-                     disturbance=jaxhop.disturbance_for("sensor"), pool=True)
+p = jaxhop.run_batch(plan, init, paper, key=jax.random.key(5),
+                     disturbance=jaxhop.disturbance_for("sensor"),
+                     execution=jaxhop.ExecSettings(pool=True))
 print(json.dumps({"devices": len(jax.devices()), "code": r["code"].tolist(),
                   "steps": r["steps"].tolist(),
                   "last": np.nan_to_num(r["apexes"][:, -1]).round(12).tolist(),

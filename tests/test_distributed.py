@@ -10,11 +10,12 @@ import jax
 import numpy as np
 import pytest
 
-from jaxhop import _execute
-from jaxhop._execute import process_chunks, run_batch
-from jaxhop._params import disturbance_for
-from jaxhop._plan import build_plan
-from jaxhop._terrain import builtin_terrain
+import jaxhop
+from jaxhop._core.params import disturbance_for
+from jaxhop._core.terrain import builtin_terrain
+from jaxhop._execution import batches as _execute
+from jaxhop._execution.batches import process_chunks, run_batch
+from jaxhop._planning.plan import build_plan
 
 
 @pytest.mark.parametrize("count", [1, 2, 3, 4, 7])
@@ -46,13 +47,14 @@ class _Gathered(Exception):
 def test_faked_processes_gather_the_one_process_result(setup, monkeypatch, count):
     """Each faked process computes only its chunks; the gathered batch equals one process's."""
     plan, init = setup
-    kw = dict(key=jax.random.key(7), disturbance=disturbance_for("sensor"), chunk=16)
+    kw = dict(settings=jaxhop.RunSettings(controller="paper"), key=jax.random.key(7),
+              disturbance=disturbance_for("sensor"), execution=jaxhop.ExecSettings(chunk=16))
     whole = run_batch(plan, init, **kw)
     n_chunks = -(-len(init) // 16)
     assert n_chunks >= 3
 
     computed = {}
-    real_jit = _execute._batch_jit
+    real_jit = _execute.batch_jit
     local = {}
 
     def counting(apex0, keys, *rest):
@@ -63,7 +65,7 @@ def test_faked_processes_gather_the_one_process_result(setup, monkeypatch, count
         local[index] = tree
         raise _Gathered
 
-    monkeypatch.setattr(_execute, "_batch_jit", counting)
+    monkeypatch.setattr(_execute, "batch_jit", counting)
     monkeypatch.setattr(_execute, "_allgather", capture)
     for index in range(count):
         monkeypatch.setattr(_execute, "_process_info", lambda i=index: (i, count))
@@ -103,7 +105,7 @@ def _free_port() -> int:
 def test_two_real_processes_equal_one(tmp_path):
     """`jaxhop sweep --distributed` on 2 local CPU processes writes the one-process JSON."""
     env = dict(os.environ, JAXHOP_CACHE=str(tmp_path / "cache"), JAXHOP_CPU_DEVICES="1")
-    base = [sys.executable, "-m", "jaxhop._cli", "sweep", "--terrain", "flat", "--noise",
+    base = [sys.executable, "-m", "jaxhop", "sweep", "--terrain", "flat", "--noise",
             "sensor", "--dy", "0.1", "--dz", "0.1", "--chunk", "16", "--seed", "4"]
     one = tmp_path / "one.json"
     subprocess.run(base + ["--json", str(one)], env=env, check=True, capture_output=True,

@@ -3,10 +3,10 @@
 import jax.numpy as jnp
 import pytest
 
-from jaxhop._flight import COLLISION, HOLE, OFF_MAP, OK, touchdown
-from jaxhop._models import bhop_stride
-from jaxhop._params import Hopper
-from jaxhop._terrain import make_terrain
+from jaxhop._control.decisions import bhop_stride
+from jaxhop._core.params import Hopper
+from jaxhop._core.terrain import make_terrain
+from jaxhop._models.flight import COLLISION, HOLE, OFF_MAP, OK, touchdown
 
 HOP = Hopper()
 FOOT = jnp.array([0.0, -1.0])

@@ -6,20 +6,20 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxhop._cache import get_plan
-from jaxhop._execute import sweep_grid
-from jaxhop._foothold import (
+from jaxhop._control.decisions import in_global_domain
+from jaxhop._control.foothold import (
     MEMORY,
     corrected_heights,
     footholds_init,
     mapped_height,
     remember,
 )
-from jaxhop._models import in_global_domain
-from jaxhop._params import Disturbance, Hopper
-from jaxhop._result import Result
-from jaxhop._runloop import RunConfig, World, step
-from jaxhop._terrain import make_terrain
+from jaxhop._control.runloop import RunConfig, World, step
+from jaxhop._core.params import Disturbance, Hopper
+from jaxhop._core.result import Result
+from jaxhop._core.terrain import make_terrain
+from jaxhop._execution.batches import sweep_grid
+from jaxhop._planning.cache import get_plan
 
 HOP = Hopper()
 MAP = make_terrain([(0.0, 1.0, 0.0), (1.0, 2.0, 0.3), (2.5, 4.0, 0.1)])

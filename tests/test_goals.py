@@ -12,13 +12,13 @@ import jax
 import numpy as np
 import pytest
 
-from jaxhop import _stages as S
 from jaxhop import reference as R
-from jaxhop._errors import InputError
-from jaxhop._params import Hopper
-from jaxhop._plan import build_plan
-from jaxhop._templates import paper_templates
-from jaxhop._terrain import make_terrain, segments
+from jaxhop._core.errors import InputError
+from jaxhop._core.params import Hopper
+from jaxhop._core.terrain import make_terrain, segments
+from jaxhop._planning import stages as S
+from jaxhop._planning.plan import build_plan
+from jaxhop._planning.templates import paper_templates
 from jaxhop.reference._plan import goal_policies as ref_goal_policies
 
 jax.config.update("jax_enable_x64", True)
@@ -97,7 +97,7 @@ def test_the_refused_energy_is_outside_the_goal_heights():
 
 
 def test_cli_refuses_an_unreachable_goal_in_one_line(tmp_path, monkeypatch, capsys):
-    from jaxhop._cli import main
+    from jaxhop._cli.main import main
 
     monkeypatch.setenv("JAXHOP_CACHE", str(tmp_path / "cache"))
     path = tmp_path / "t.json"

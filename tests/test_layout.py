@@ -1,84 +1,169 @@
-"""The package keeps its shape: data flows one way, modules stay small, shared helpers work."""
+"""The package keeps its shape: data flows one way through its stages, private names stay
+in their modules, the public API stays small, and the shared helpers work."""
 
 import ast
+import inspect
 import pathlib
 
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxhop._batching import bucket, chunked_map, pad_to, pow2_at_least
-from jaxhop._progress import Progress
+from jaxhop._core.batching import bucket, chunked_map, pad_to, pow2_at_least
+from jaxhop._core.progress import Progress
 
 PACKAGE = pathlib.Path(__file__).parent.parent / "jaxhop"
 
-# The pipeline, in order: a module may import from its own stage or an earlier one.
-STAGES = [
-    ["__init__"],  # re-exports only; checked separately below
-    ["_errors", "_params", "_paths", "_validate", "_result"],
-    ["_terrain", "_batching", "_progress", "_programs"],
-    ["_bhop", "_flight", "_slip", "_slip_deadbeat", "_slip_bracket", "_slip_table"],
-    ["_templates"],
-    ["_regions", "_policies"],
-    ["_graph", "_deploy", "_stages", "_plan"],
-    ["_cache"],
-    ["_models", "_observer", "_foothold", "_runloop", "_pool", "_checkpoint", "_execute",
-     "_replay"],
-    ["_draw", "_plot", "_animate"],
-    ["mppc"],
-    ["parkour"],
-    ["mujoco"],
-    ["_cli_args", "_cli", "_demo"],
-]
-RANK = {name: i for i, names in enumerate(STAGES) for name in names}
-
-
-def _stage(module: str) -> int:
-    """Rank of a dotted module path relative to the package (`_plan`, `mppc._run`)."""
-    head = module.split(".")[0]
-    return RANK[head]
+# The pipeline, in order: a module may import from its own package or an earlier one.
+# `reference` (the NumPy twin) is independent of all of them.
+ORDER = ["_core", "_models", "_planning", "_control", "_execution", "_viz", "mppc", "parkour",
+         "mujoco", "_cli"]
+# Files that only re-export (the package root and the public namespace modules).
+FACADES = {"jaxhop", "jaxhop.slip", "jaxhop.plot", "jaxhop.__main__"}
 
 
 def _modules():
+    """`(path, dotted module name, is a package's __init__)` of every module of jaxhop."""
     for path in sorted(PACKAGE.rglob("*.py")):
-        rel = path.relative_to(PACKAGE).with_suffix("")
-        if rel.parts[0] == "reference":
-            continue  # the NumPy twin is independent of the pipeline
-        yield path, ".".join(rel.parts)
+        parts = ("jaxhop",) + path.relative_to(PACKAGE).with_suffix("").parts
+        init = parts[-1] == "__init__"
+        yield path, ".".join(parts[:-1] if init else parts), init
 
 
-def _imports(path: pathlib.Path, module: str):
-    """Package-internal modules imported by `module`, as dotted paths from the package."""
-    package = module.split(".")[:-1]
+MODULES = {name: (path, init) for path, name, init in _modules()}
+
+
+def _imports(name: str):
+    """`(target module, imported names)` of every import of jaxhop modules in `name`, at
+    any depth (inside functions too); a name that is itself a module is resolved to it."""
+    path, init = MODULES[name]
+    package = name.split(".") if init else name.split(".")[:-1]
     for node in ast.walk(ast.parse(path.read_text())):
-        if isinstance(node, ast.ImportFrom) and node.level > 0:
-            base = package[: len(package) - (node.level - 1)]
-            target = ".".join(base + ([node.module] if node.module else []))
-            if node.module:
-                yield target
+        if isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package[: len(package) - (node.level - 1)]
+                target = ".".join(base + ([node.module] if node.module else []))
+            elif (node.module or "").split(".")[0] == "jaxhop":
+                target = node.module
             else:
-                for alias in node.names:  # `from . import _stages`
-                    yield ".".join(base + [alias.name])
+                continue
+            for alias in node.names:
+                sub = f"{target}.{alias.name}"
+                yield (sub, None) if sub in MODULES else (target, alias.name)
+        elif isinstance(node, ast.Import):
+            for alias in node.names:
+                if alias.name.split(".")[0] == "jaxhop":
+                    yield alias.name, None
 
 
-@pytest.mark.parametrize("path,module", list(_modules()), ids=lambda x: str(x))
-def test_no_module_imports_from_a_later_stage(path, module):
-    if module.split(".")[-1] == "__init__" or module.endswith("__version__"):
-        pytest.skip("package files re-export")
-    mine = _stage(module)
-    for target in _imports(path, module):
-        if target.split(".")[-1] in ("__version__", ""):
+def _rank(name: str) -> int | None:
+    parts = name.split(".")
+    return ORDER.index(parts[1]) if len(parts) > 1 and parts[1] in ORDER else None
+
+
+def _graph():
+    return {name: {t for t, _ in _imports(name) if t != name} for name in MODULES}
+
+
+def test_every_module_lies_in_a_stage_or_the_twin():
+    for name in MODULES:
+        top = name.split(".")[1] if "." in name else None
+        assert name in FACADES or top in ORDER or top == "reference", (
+            f"{name} is in no stage of the pipeline")
+
+
+def test_no_module_imports_from_a_later_stage():
+    for name in MODULES:
+        if name in FACADES:
             continue
-        if target.split(".")[0] == "reference":
+        mine = _rank(name)
+        for target, _ in _imports(name):
+            if name.split(".")[1] == "reference":
+                assert target.startswith("jaxhop.reference"), f"the twin {name} imports {target}"
+                continue
+            assert target not in FACADES, f"{name} imports {target}, which re-exports"
+            assert _rank(target) <= mine, f"{name} imports {target}, a later stage"
+
+
+def test_no_module_imports_a_private_name_of_another():
+    for name in MODULES:
+        for target, imported in _imports(name):
+            if imported is not None and target != name:
+                assert not imported.startswith("_"), f"{name} imports {imported} from {target}"
+
+
+def _find_cycle(graph) -> list | None:
+    """A cycle of `graph` (module -> imported modules) by depth-first search, or None."""
+    state = {}
+
+    def visit(node, stack):
+        state[node] = "open"
+        for nxt in sorted(graph.get(node, ())):
+            if state.get(nxt) == "open":
+                return stack[stack.index(nxt):] + [nxt]
+            if nxt not in state:
+                found = visit(nxt, stack + [nxt])
+                if found:
+                    return found
+        state[node] = "done"
+        return None
+
+    for node in sorted(graph):
+        if node not in state:
+            found = visit(node, [node])
+            if found:
+                return found
+    return None
+
+
+def test_no_import_cycle():
+    """Counting imports inside functions. Importing `jaxhop.x.y` runs `jaxhop.x`'s
+    `__init__` too, so a module that reads a name back from the package root closes a
+    cycle through it."""
+    cycle = _find_cycle(_graph())
+    assert cycle is None, "import cycle: " + " -> ".join(cycle)
+
+
+def test_the_cycle_search_finds_cycles():
+    assert _find_cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]
+    assert _find_cycle({"a": {"b", "c"}, "b": {"c"}, "c": set()}) is None
+
+
+PUBLIC = ["jaxhop", "jaxhop.slip", "jaxhop.plot", "jaxhop.mppc", "jaxhop.parkour",
+          "jaxhop.mujoco", "jaxhop.reference"]
+
+
+def _public_callables():
+    """Every public function of the public modules, and every method of their public
+    classes written by hand (a dataclass's or `equinox.Module`'s generated `__init__` holds
+    its fields: data, not a call site)."""
+    import importlib
+
+    for modname in PUBLIC:
+        module = importlib.import_module(modname)
+        for attr in dir(module):
+            obj = getattr(module, attr)
+            if attr.startswith("_"):
+                continue
+            if inspect.isfunction(obj):
+                yield f"{modname}.{attr}", obj
+            elif inspect.isclass(obj):
+                for meth, fn in vars(obj).items():
+                    fn = getattr(fn, "__func__", fn)
+                    written = inspect.isfunction(fn) and fn.__code__.co_filename.endswith(".py")
+                    if written and (meth == "__init__" or not meth.startswith("_")):
+                        yield f"{modname}.{attr}.{meth}", fn
+
+
+def test_no_public_function_takes_more_than_8_parameters():
+    for name, fn in _public_callables():
+        try:
+            params = inspect.signature(fn).parameters
+        except (TypeError, ValueError):
             continue
-        assert _stage(target) <= mine, f"{module} imports {target}, a later stage"
-
-
-def test_every_module_has_a_stage_and_stays_small():
-    for path, module in _modules():
-        assert module.split(".")[0] in RANK, f"{module} is in no stage of the pipeline"
-        lines = len(path.read_text().splitlines())
-        assert lines <= 450, f"{module} has {lines} lines"
+        n = len([p for p in params.values() if p.name not in ("self", "cls")
+                 and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)])
+        assert n <= 8, f"{name} takes {n} parameters"
 
 
 def test_chunked_map_equals_one_call_over_all_items():

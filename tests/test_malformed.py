@@ -2,7 +2,7 @@
 
 A seeded generator mutates a valid terrain file, a valid course file and valid command
 lines of every subcommand (`plan`, `sweep`, `run`, `step`, `parkour`, `demo`). Every case
-goes through the CLI entry point `jaxhop._cli.main` in this process, with everything that
+goes through the CLI entry point `jaxhop._cli.main.main` in this process, with everything that
 would plan, run or compile replaced by a tripwire: a bad input must be rejected before any
 work starts. A handful of the cases also run as real `jaxhop` processes.
 """
@@ -20,8 +20,8 @@ import sys
 
 import pytest
 
-from jaxhop._cli import main
-from jaxhop._terrain import terrain_from_dict
+from jaxhop._cli.main import main
+from jaxhop._core.terrain import terrain_from_dict
 from jaxhop.mppc._course import course_from_dict
 
 SEED = 20_261_121
@@ -511,19 +511,21 @@ def generate(root) -> list[Case]:
 @pytest.fixture
 def tripwires(monkeypatch):
     """Everything that would build a plan, run, simulate or compile raises `Tripwire`."""
-    import jaxhop._demo
-    import jaxhop._execute
-    import jaxhop._plan
-    import jaxhop._slip
-    import jaxhop.mppc._cli
+    # Each is patched where the command line looks it up when it runs (`jaxhop step` takes
+    # its stride from the model, `decisions.py`, which reads both names at call time).
+    from jaxhop._cli import demo
+    from jaxhop._control import decisions
+    from jaxhop._execution import batches
+    from jaxhop._models.slip import stride
+    from jaxhop._planning import cache, plan
+    from jaxhop.mppc import _cli as mppc_cli
 
     def trip(*args, **kwargs):
         raise Tripwire("validation came too late")
 
-    for module, name in ((jaxhop._plan, "build_plan"), (jaxhop._cache, "get_plan"),
-                         (jaxhop._execute, "sweep"), (jaxhop._execute, "run_batch"),
-                         (jaxhop._execute, "bhop_stride"), (jaxhop._slip, "slip_stride"),
-                         (jaxhop._demo, "demo"), (jaxhop.mppc._cli, "run_course")):
+    for module, name in ((plan, "build_plan"), (cache, "get_plan"), (batches, "sweep"),
+                         (batches, "run_batch"), (decisions, "bhop_stride"),
+                         (stride, "slip_stride"), (demo, "demo"), (mppc_cli, "run_course")):
         monkeypatch.setattr(module, name, trip)
 
 
@@ -581,6 +583,7 @@ def test_malformed_inputs_exit_2(tmp_path, capsys, tripwires):
     assert min(counts["terrain"], counts["course"], counts["cli"]) >= 250
 
 
+@pytest.mark.slow  # starts processes
 def test_real_processes_agree(tmp_path):
     """A few cases as real processes: exit status 2, one stderr line, no traceback."""
     cases = generate(_mkroot(tmp_path))
@@ -589,7 +592,7 @@ def test_real_processes_agree(tmp_path):
               for kind in ("terrain:", "course:", "cli:bad number", "cli:unknown option",
                            "cli:bad path")]
     for case in picked:
-        proc = subprocess.run([sys.executable, "-m", "jaxhop._cli", *case.argv],
+        proc = subprocess.run([sys.executable, "-m", "jaxhop", *case.argv],
                               capture_output=True, text=True, timeout=300,
                               env=dict(os.environ, JAXHOP_CACHE=str(tmp_path / "cache")))
         lines = proc.stderr.strip().splitlines()

@@ -1,6 +1,5 @@
 """MPPC courses: the shipped data, the loader's validation, the robot offsets, the CLI."""
 
-import argparse
 import json
 import math
 
@@ -8,6 +7,7 @@ import numpy as np
 import pytest
 
 from jaxhop import InputError
+from jaxhop._cli.main import main
 from jaxhop.mppc import (
     Robot,
     course_from_dict,
@@ -18,7 +18,6 @@ from jaxhop.mppc import (
     random_course,
     reference_results,
 )
-from jaxhop.parkour._cli import add_parser
 
 SHIPPED = [
     "mppc-hw-disturbances", "mppc-hw-dynamic-1", "mppc-hw-dynamic-2", "mppc-hw-dynamic-3",
@@ -133,23 +132,21 @@ def test_load_errors(tmp_path):
 
 
 def _cli(argv):
-    parser = argparse.ArgumentParser(prog="jaxhop")
-    add_parser(parser.add_subparsers(dest="cmd", required=True))
-    args = parser.parse_args(argv)
-    try:
-        return args.func(args)
-    except InputError:
-        return 2
+    """`jaxhop ARGV` through the command line's entry point, in this process."""
+    return main(argv)
 
 
-def test_cli_bad_input_exit_2(tmp_path):
+def test_cli_bad_input_exit_2(tmp_path, capsys):
     bad = tmp_path / "bad.json"
     bad.write_text(json.dumps(_bad(obstacles=[{"position": 1.0, "width": 0, "height": 1}])))
-    assert _cli(["parkour", "--course", str(bad)]) == 2
-    assert _cli(["parkour", "--course", "nope"]) == 2
-    assert _cli(["parkour", "--course", "mppc-sim-1", "--grid", "-1"]) == 2
-    with pytest.raises(SystemExit):
-        _cli(["parkour", "--course", "mppc-sim-1", "--planner", "astar"])
+    for argv, needle in ((["parkour", "--course", str(bad)], "width"),
+                         (["parkour", "--course", "nope"], "neither a shipped course"),
+                         (["parkour", "--course", "mppc-sim-1", "--grid", "-1"], "--grid"),
+                         (["parkour", "--course", "mppc-sim-1", "--planner", "astar"],
+                          "invalid choice")):
+        assert _cli(argv) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and needle in err[0], (argv, err)
 
 
 def test_cli_writes_json(tmp_path):

@@ -79,7 +79,7 @@ def test_jump_planned_in_wind_lands_on_the_planned_point(wind):
     c = _course(obstacles=[(0.5, 0.7, 0.2)])
     env = c.environment
     arrays = [jnp.asarray(q) for q in (env.front, env.back, env.height)]
-    pair = jax.jit(lambda x0, x1, z1, a: min_time_jump(ROBOT, x0, 0.0, x1, z1, *arrays,
+    pair = jax.jit(lambda x0, x1, z1, a: min_time_jump(ROBOT, (x0, 0.0), (x1, z1), arrays,
                                                        0.05, a))
     n_ok = 0
     for x0, x1 in ((0.0, 0.6), (0.1, 0.62), (0.2, 0.85), (0.0, 0.4)):
@@ -111,7 +111,7 @@ def test_still_air_path_and_zero_wind_agree():
     z0, z1 = env.surface(x0), env.surface(x1)
 
     def batch(wind):
-        f = jax.vmap(lambda a, b, c, d: min_time_jump(ROBOT, a, b, c, d, *arrays, 0.05, wind))
+        f = jax.vmap(lambda a, b, c, d: min_time_jump(ROBOT, (a, b), (c, d), arrays, 0.05, wind))
         return [np.asarray(q) for q in jax.jit(f)(x0, z0, x1, z1)]
 
     ok0, t0, _, _ = batch(None)
@@ -128,9 +128,9 @@ def test_room_keeps_a_shifted_flight_clear():
     c = _course(obstacles=[(0.45, 0.65, 0.15), (1.2, 1.3, 0.25)])
     env = c.environment
     arrays = [jnp.asarray(q) for q in (env.front, env.back, env.height)]
-    pair = jax.jit(lambda x0, x1, z0, z1: min_time_jump(ROBOT, x0, z0, x1, z1, *arrays, 0.05,
-                                                        room=room))
-    plain = jax.jit(lambda x0, x1, z0, z1: min_time_jump(ROBOT, x0, z0, x1, z1, *arrays, 0.05))
+    pair = jax.jit(lambda x0, x1, z0, z1: min_time_jump(ROBOT, (x0, z0), (x1, z1), arrays,
+                                                        0.05, room=room))
+    plain = jax.jit(lambda x0, x1, z0, z1: min_time_jump(ROBOT, (x0, z0), (x1, z1), arrays, 0.05))
     tested = flagged = 0
     for x0, x1 in ((0.0, 0.6), (0.1, 0.55), (0.61, 1.0), (0.9, 1.25), (0.3, 0.8)):
         z0, z1 = float(env.surface(x0)), float(env.surface(x1))
@@ -165,8 +165,8 @@ def test_polish_never_slower_and_passes_the_checker(name):
     course = random_course(3) if name == "random-3" else load_course(name)
     grid, polished = MPPC(), MPPC(settings=Settings(polish=True))
     env = course.environment
-    data_g = _plan._EnvData(grid, course, env)
-    data_p = _plan._EnvData(polished, course, env)
+    data_g = _plan.EnvData(grid, course, env)
+    data_p = _plan.EnvData(polished, course, env)
     starts = [x for x in data_g.x[data_g.legal] if x < course.goal - 0.5][::9][:8]
     helped = 0
     for x in starts:

@@ -50,7 +50,7 @@ def test_min_time_jump_against_angle_scan():
     x0 = rng.uniform(0.5, 6.0, 600)
     x1 = x0 + rng.uniform(0.05, 1.1, 600)
     z0, z1 = env.surface(x0), env.surface(x1)
-    mine = jax.jit(jax.vmap(lambda a, b, c, d: min_time_jump(ROBOT, a, b, c, d, *arrays, 0.05)))
+    mine = jax.jit(jax.vmap(lambda a, b, c, d: min_time_jump(ROBOT, (a, b), (c, d), arrays, 0.05)))
     ok, t, _, _ = (np.asarray(q) for q in mine(x0, z0, x1, z1))
     brute = _brute_min_times(x0, z0, x1, z1, arrays, 0.05)
     found = np.isfinite(brute)
@@ -79,8 +79,8 @@ def test_min_time_is_minimal_by_checker():
     tested = 0
     for x1 in xs[legal]:
         z1 = float(env.surface(x1))
-        ok, t, v, th = (float(q) for q in min_time_jump(ROBOT, 0.0, 0.0, x1, z1, *arrays,
-                                                        0.05))
+        ok, t, v, th = (float(q) for q in min_time_jump(ROBOT, (0.0, 0.0), (x1, z1),
+                                                        arrays, 0.05))
         if not ok or th < ROBOT.theta_min + 1e-3:
             continue
         tested += 1
@@ -96,7 +96,7 @@ def test_min_time_is_minimal_by_checker():
 
 def _tiny_window(course, grid):
     planner = MPPC(settings=Settings(grid=grid, dead_ends="never"))
-    data = _plan._EnvData(planner, course, course.environment)
+    data = _plan.EnvData(planner, course, course.environment)
     size, band, ksize, local = planner._sizes(course)
     sel = data.legal & (data.x > course.start)
     x = np.concatenate([[course.start], data.x[sel]])
@@ -148,7 +148,7 @@ def test_dp_against_brute_force(seed):
 def test_horizon_rule_smallest_n():
     course = load_course("mppc-sim-1")
     planner = MPPC()
-    data = _plan._EnvData(planner, course, course.environment)
+    data = _plan.EnvData(planner, course, course.environment)
     plan = planner.replan(course, data, 0.0, 0.0)
     # 2 m of floor and blocks: the original's rule gives N from ceil(2 / 0.784) = 3.
     assert plan.n_jumps == 3 and len(plan.jumps) == 3
@@ -179,7 +179,7 @@ def test_random_course_finishes_when_reachable():
     planner = MPPC()
     result = run_course(course, planner)
     env = course.environment
-    data = _plan._EnvData(planner, course, env)
+    data = _plan.EnvData(planner, course, env)
     assert result.finished == bool(data.reach[0])
     assert not result.violations
 

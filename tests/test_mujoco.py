@@ -6,8 +6,8 @@ import pytest
 pytest.importorskip("mujoco")
 
 from jaxhop import Hopper, make_terrain  # noqa: E402
-from jaxhop._result import Result  # noqa: E402
-from jaxhop._slip import slip_strides  # noqa: E402
+from jaxhop._core.result import Result  # noqa: E402
+from jaxhop._models.slip.stride import slip_strides  # noqa: E402
 from jaxhop.mujoco import IDEAL, Mechanics, Simulator, hopper_xml  # noqa: E402
 
 HOPPER = Hopper()
@@ -127,7 +127,7 @@ class _Fixed:
 def test_runner_loop_follows_slip_strides_and_stops():
     import jax
 
-    from jaxhop.mujoco import run_one
+    from jaxhop.mujoco._run import run_one
 
     u = np.array([0.12, KC, 1.1 * KC])
     ctrl = _Fixed(u, goal=[50.0, 1.3, 0.0])
@@ -146,7 +146,7 @@ def test_runner_loop_follows_slip_strides_and_stops():
 
 
 def test_evenly_spaced_states_keep_both_ends():
-    from jaxhop._execute import evenly_spaced
+    from jaxhop._execution.batches import evenly_spaced
 
     states = np.arange(30.0).reshape(10, 3)
     picked = evenly_spaced(states, 4)
@@ -163,7 +163,7 @@ def test_evenly_spaced_states_keep_both_ends():
     (["sweep", "--runs", "0"], "--runs: must lie in"),
 ])
 def test_mujoco_cli_refusals_exit_2(capsys, argv, needle):
-    from jaxhop._cli import main
+    from jaxhop._cli.main import main
 
     assert main(argv) == 2
     err = capsys.readouterr().err.strip()
@@ -173,7 +173,7 @@ def test_mujoco_cli_refusals_exit_2(capsys, argv, needle):
 def test_missing_mujoco_is_one_line_exit_2(capsys, monkeypatch):
     import sys
 
-    from jaxhop._cli import main
+    from jaxhop._cli.main import main
 
     for name in [m for m in sys.modules if m == "mujoco" or m.startswith("jaxhop.mujoco")]:
         monkeypatch.delitem(sys.modules, name)
@@ -189,7 +189,7 @@ def test_cli_run_and_sweep_with_the_slip_controller(tmp_path, capsys):
     compilation per process)."""
     import json
 
-    from jaxhop._cli import main
+    from jaxhop._cli.main import main
 
     run = tmp_path / "run.json"
     assert main(["run", "--sim", "mujoco", "--terrain", "flat", "--apex", "0.5,1.6,0.5",

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 import jaxhop
-from jaxhop._policies import PairGrid, template_boxes
-from jaxhop._templates import (
+from jaxhop._planning.policies import PairGrid, template_boxes
+from jaxhop._planning.templates import (
     dimensionless_templates,
     paper_templates,
     scaled_templates,
@@ -192,15 +192,16 @@ def test_incremental_update_gives_the_same_outcomes(small_plans):
     course, hop, cps, fulls = small_plans
     padded = pad_plans(cps)
     apex0, _ = initial_states(cps, padded, 24, 1, hop)
-    a = run_reactive(cps, padded, apex0, hopper=hop)
+    a = run_reactive(cps, padded, apex0, hopper=hop, controller="paper")
     cps_full = dataclass_replace(cps, plans=fulls)
-    b = run_reactive(cps_full, pad_plans(cps_full), apex0, hopper=hop)
+    b = run_reactive(cps_full, pad_plans(cps_full), apex0, hopper=hop, controller="paper")
     assert np.array_equal(a["code"], b["code"])
     assert np.array_equal(a["steps"], b["steps"])
     assert np.array_equal(a["policies"], b["policies"])
     # And under sensor noise (same seed), where runs wander more.
-    a = run_reactive(cps, padded, apex0, hopper=hop, noise="sensor", seed=3)
-    b = run_reactive(cps_full, pad_plans(cps_full), apex0, hopper=hop, noise="sensor", seed=3)
+    a = run_reactive(cps, padded, apex0, hopper=hop, noise="sensor", seed=3, controller="paper")
+    b = run_reactive(cps_full, pad_plans(cps_full), apex0, hopper=hop, noise="sensor", seed=3,
+                     controller="paper")
     assert np.array_equal(a["code"], b["code"])
     assert np.array_equal(a["steps"], b["steps"])
 
@@ -210,7 +211,7 @@ def test_slip_course_tables_carry_the_slip_table_and_decide_as_the_plan_does(sma
     # A course's padded tables must give the SLIP the deadbeat's start table (without it
     # every decision ran the multi-start solver, ten times slower on the leg), and padding
     # must not change a decision: the same policy and controls as the plan's own tables.
-    from jaxhop._models import decide_slip
+    from jaxhop._control.decisions import decide_slip
 
     course, hop, cps, _ = small_plans
     assert pad_plans(cps).tables[0].slip is None
@@ -265,7 +266,7 @@ def test_course_map_segments_stay_put_when_an_obstacle_moves():
     # absolute grid k * 2l, so moving the tall obstacle by 2 mm and the restricted area by
     # 3 cm changes only segments within a segment of the moved edges (and their margin
     # bands); and every block keeps as many segments as centring gives it.
-    from jaxhop._terrain import segments
+    from jaxhop._core.terrain import segments
     from jaxhop.parkour._map import CELL, _on_lattice
 
     maps, hop, tm = _tall_maps(align=True)
@@ -307,7 +308,7 @@ def test_course_map_segments_stay_put_when_an_obstacle_moves():
 def _interior_gaps(m, seg):
     """Stretches of allowed floor between two allowed segments of one height that no
     segment covers (brute force over consecutive segments)."""
-    from jaxhop._terrain import segments
+    from jaxhop._core.terrain import segments
 
     s = segments(m.plan, seg)
     c = np.asarray(s.centre)[np.asarray(m.allowed)[np.asarray(s.block)]]
@@ -326,7 +327,7 @@ def test_lattice_segments_leave_no_gap_inside_the_floor(name):
     # Centred, a floor block next to a lattice cut leaves half its slack uncovered at the
     # cut, in the middle of the floor (outside every domain); on the lattice grid the
     # slack goes to the block's free end, and every block keeps its segment count.
-    from jaxhop._terrain import segments
+    from jaxhop._core.terrain import segments
 
     course = load_course(name)
     hop = leg_hopper()
@@ -347,14 +348,16 @@ def test_update_dependency_tests_are_sufficient(align):
     # obstacle's 2 mm move: a pair between kept policies whose collision clauses no
     # changed block can bind has the same `pair_goal` on both maps, and an apex whose
     # descent meets no changed block has the same `candidate_situated` result.
+    from jaxhop._planning import stages as S
     from jaxhop.parkour import _build as B
+    from jaxhop.parkour import _reach as PR
 
     maps, hop, tm = _tall_maps(align)
     old, new = (B._Context(m, tm, hop) for m in maps[:2])
-    blocks = B._changed(maps[0], maps[1])
+    blocks = PR.changed_blocks(maps[0], maps[1])
     assert np.any(blocks[:, 2] > hop.rho0)  # the moved obstacle binds rises from the floor
 
-    old_to_new = B._situated_map(maps[0], old.segs, new)
+    old_to_new = PR.situated_map(maps[0], old.segs, new)
     new_to_old = np.full(new.n_sit, -1)
     new_to_old[old_to_new[old_to_new >= 0]] = np.nonzero(old_to_new >= 0)[0]
     kept = (new_to_old >= 0) & new.sit_allowed
@@ -370,7 +373,7 @@ def test_update_dependency_tests_are_sufficient(align):
     def goals(ctx, r, c):
         box = np.stack([np.maximum(ctx.gf_world[r, 1:, 0], ctx.d_world[c, 1:, 0]),
                         np.minimum(ctx.gf_world[r, 1:, 1], ctx.d_world[c, 1:, 1])], axis=2)
-        return B._padded(lambda *a: B._pairs_jit(*a, ctx.jtable, tm, ctx.jterrain, hop, GRID),
+        return B._padded(lambda *a: S.pairs_jit(*a, ctx.jtable, tm, ctx.jterrain, hop, GRID),
                          r.size, B._PAIR_CHUNK, ctx.t_of[r], ctx.s_of[r], ctx.t_of[c],
                          ctx.s_of[c], box, small=True)
 
@@ -385,15 +388,15 @@ def test_update_dependency_tests_are_sufficient(align):
                      rng.uniform(-0.5, 1.0, n)], 1)
     # `touched` is given only where a touchdown can be looked up differently (a re-cut
     # block of the same height keeps its grid segments).
-    landing = B._landing_changes(maps[0], old.segs, new, blocks)
+    landing = PR.landing_changes(maps[0], old.segs, new, blocks)
     assert landing.shape[0] > 0
     untouched = ~new.touched(apex, landing)
     assert untouched.any() and (~untouched).any()
     assert np.all(new.touched(apex, landing, new.probe) >= ~untouched)
 
     def rows_of(ctx, a):
-        return B._padded(lambda g: B._rows_jit(g, ctx.jallowed, ctx.jtable, tm, ctx.jterrain,
-                                               hop), a.shape[0], B._ROW_CHUNK, a, small=True)
+        return B._padded(lambda g: S.rows_jit(g, ctx.jallowed, ctx.jtable, tm, ctx.jterrain,
+                                               hop), a.shape[0], S.ROW_CHUNK, a, small=True)
 
     ids1, in1 = rows_of(new, apex[untouched])
     ids0, in0 = rows_of(old, apex[untouched])
@@ -432,7 +435,7 @@ def test_deploy_queue_equals_the_twins_tuple_heap(tall_plans):
     # `deploy`'s queue (float keys, ties by index) gives the order of the twin's heap of
     # `(key, policy)` tuples, also when many keys tie.
     from jaxhop import reference as R
-    from jaxhop._deploy import by_depth, by_robustness, by_safety, deploy
+    from jaxhop._planning.deploy import by_depth, by_robustness, by_safety, deploy
 
     p = tall_plans[0][1].plan
     args = (p.prepares, p.situated, p.safety, p.is_goal, p.robustness)
@@ -452,11 +455,11 @@ def test_reactive_runs_never_touch_forbidden_floor(small_plans):
     # On the static first environment: correct by construction, every covered state
     # reaches the goal.
     static = dataclass_replace(cps, starts=[0], maps=cps.maps[:1], plans=cps.plans[:1])
-    res = run_reactive(static, pad_plans(static), apex0, hopper=hop)
+    res = run_reactive(static, pad_plans(static), apex0, hopper=hop, controller="paper")
     assert np.all(res["code"] == 0)
     # With the snapshots a run can be caught outside the new plan (an obstacle appears
     # under it), but it never touches down on forbidden floor.
-    res = run_reactive(cps, padded, apex0, hopper=hop)
+    res = run_reactive(cps, padded, apex0, hopper=hop, controller="paper")
     assert set(np.unique(res["code"])) <= {0, 4}
     for i in range(len(apex0)):
         for k in range(int(res["steps"][i])):
@@ -468,7 +471,7 @@ def test_reactive_runs_never_touch_forbidden_floor(small_plans):
 
 @pytest.mark.slow
 def test_touchdown_in_restricted_area_is_classified(small_plans):
-    from jaxhop._params import disturbance_for as disturbance
+    from jaxhop._core.params import disturbance_for as disturbance
     from jaxhop.parkour._run import _step_batch
 
     course, hop, cps, _ = small_plans
@@ -476,7 +479,7 @@ def test_touchdown_in_restricted_area_is_classified(small_plans):
     f = cps.maps[0].forbidden_intervals()
     lo, hi, kind = f[np.argmax(f[:, 1] - f[:, 0])]
     # Straight above the middle of a forbidden block no policy is situated: outside_domain.
-    res = run_reactive(cps, padded, [[0.5 * (lo + hi), 0.3, 0.0]], hopper=hop)
+    res = run_reactive(cps, padded, [[0.5 * (lo + hi), 0.3, 0.0]], hopper=hop, controller="paper")
     assert res["code"][0] == 4
     # A state the plan covers, stepped with every touchdown declared restricted (or a
     # margin band): the stride's code is that failure.

@@ -6,8 +6,8 @@ carry them to the goal."""
 import numpy as np
 import pytest
 
-from jaxhop._policies import PairGrid
-from jaxhop._result import Result
+from jaxhop._core.result import Result
+from jaxhop._planning.policies import PairGrid
 from jaxhop.mppc import course_from_dict
 from jaxhop.parkour import leg_hopper, leg_templates
 from jaxhop.parkour._run import (

@@ -5,17 +5,18 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxhop._batching import pad_terrain
-from jaxhop._cache import get_plan
-from jaxhop._deploy import check_order
-from jaxhop._execute import run_batch, sweep
-from jaxhop._flight import OK, SUCCESS, touchdown
-from jaxhop._models import first_match
-from jaxhop._params import Disturbance, disturbance_for
-from jaxhop._plan import bucketed, build_plan
-from jaxhop._regions import template_domain_contains
-from jaxhop._runloop import run_one
-from jaxhop._terrain import builtin_terrain, make_terrain, segments
+import jaxhop
+from jaxhop._control.decisions import first_match
+from jaxhop._control.runloop import run_one
+from jaxhop._core.batching import pad_terrain
+from jaxhop._core.params import Disturbance, disturbance_for
+from jaxhop._core.terrain import builtin_terrain, make_terrain, segments
+from jaxhop._execution.batches import run_batch, sweep
+from jaxhop._models.flight import OK, SUCCESS, touchdown
+from jaxhop._planning.cache import get_plan
+from jaxhop._planning.deploy import check_order
+from jaxhop._planning.plan import bucketed, build_plan
+from jaxhop._planning.regions import template_domain_contains
 
 
 @pytest.fixture(scope="module")
@@ -79,7 +80,8 @@ def test_deployment_invariant_breaks_when_order_is_shuffled(plan):
 
 
 def test_nominal_sweep_is_correct_by_construction(plan):
-    summary, initial, result = sweep(plan, dy=0.1, dz=0.1)
+    summary, initial, result = sweep(plan, jaxhop.RunSettings(controller="paper"),
+                                     initial=jaxhop.SweepGrid(dy=0.1, dz=0.1))
     assert summary["n_initial_conditions"] > 200
     assert summary["success_rate"] == 1.0 and summary["failures"]["solver"] == 0
 
@@ -87,7 +89,7 @@ def test_nominal_sweep_is_correct_by_construction(plan):
 def test_run_jit_vmap_and_seed_reproducibility(plan):
     tables = plan.tables()
     starts = np.array([[0.4, 1.6, 0.5], [1.2, 1.9, 0.5], [2.0, 1.4, 0.5]])
-    from jaxhop._runloop import RunConfig
+    from jaxhop._control.runloop import RunConfig
 
     cfg = RunConfig(goal=jnp.asarray(plan.goal), max_steps=12)
     dist = disturbance_for("sensor")
@@ -95,16 +97,19 @@ def test_run_jit_vmap_and_seed_reproducibility(plan):
     with jax.disable_jit():
         eager = [run_one(jnp.asarray(s), k, tables, plan.terrain, plan.hopper, dist, cfg)
                  for s, k in zip(starts[:1], keys[:1])]
-    batched = run_batch(plan, starts, key=jax.random.key(7), disturbance=dist, max_steps=12)
+    batched = run_batch(plan, starts, jaxhop.RunSettings(max_steps=12, controller="paper"),
+                        key=jax.random.key(7), disturbance=dist)
     # Run 0 alone equals run 0 in the batch (keys do not depend on the batch).
-    loop = [run_batch(plan, starts[i:i + 1], key=jax.random.key(7), disturbance=dist,
-                      max_steps=12) for i in range(1)]
+    loop = [run_batch(plan, starts[i:i + 1], jaxhop.RunSettings(max_steps=12, controller="paper"),
+                      key=jax.random.key(7), disturbance=dist) for i in range(1)]
     assert int(eager[0][0]) == int(batched["code"][0]) == int(loop[0]["code"][0])
     np.testing.assert_array_equal(loop[0]["apexes"][0], batched["apexes"][0])
     np.testing.assert_allclose(np.asarray(eager[0][2]), batched["apexes"][0], atol=1e-12)
-    again = run_batch(plan, starts, key=jax.random.key(7), disturbance=dist, max_steps=12)
+    again = run_batch(plan, starts, jaxhop.RunSettings(max_steps=12, controller="paper"),
+                      key=jax.random.key(7), disturbance=dist)
     np.testing.assert_array_equal(again["apexes"], batched["apexes"])
-    other = run_batch(plan, starts, key=jax.random.key(8), disturbance=dist, max_steps=12)
+    other = run_batch(plan, starts, jaxhop.RunSettings(max_steps=12, controller="paper"),
+                      key=jax.random.key(8), disturbance=dist)
     assert not np.array_equal(other["apexes"], batched["apexes"])
 
 
@@ -135,7 +140,8 @@ def test_first_match_is_first_in_order(plan):
 
 
 def test_goal_reached_exactly_without_noise(plan):
-    r = run_batch(plan, np.array([[0.5, 1.6, 0.5]]), disturbance=Disturbance())
+    r = run_batch(plan, np.array([[0.5, 1.6, 0.5]]), jaxhop.RunSettings(controller="paper"),
+                  disturbance=Disturbance())
     assert int(r["code"][0]) == SUCCESS
     last = r["apexes"][0][int(r["steps"][0])]
     np.testing.assert_allclose(last, plan.goal, atol=1e-9)

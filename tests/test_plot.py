@@ -6,8 +6,9 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from jaxhop._plot import doa_figure, runs_figure  # noqa: E402
-from jaxhop._terrain import builtin_terrain  # noqa: E402
+import jaxhop
+from jaxhop._core.terrain import builtin_terrain  # noqa: E402
+from jaxhop._viz.plot import doa_figure, runs_figure  # noqa: E402
 
 
 def _fake_run(steps):
@@ -52,10 +53,10 @@ def test_doa_figure_counts_successes_and_failures():
 
 import pytest  # noqa: E402
 
-from jaxhop._animate import animate_run, animation_frames, animation_writer  # noqa: E402
-from jaxhop._draw import policy_cross_sections, stride_paths  # noqa: E402
-from jaxhop._plot import disturbance_figure, long_run_figure  # noqa: E402
-from jaxhop._replay import nominal_controls, open_loop_replay  # noqa: E402
+from jaxhop._execution.replay import nominal_controls, open_loop_replay  # noqa: E402
+from jaxhop._viz.animate import animate_run, animation_frames, animation_writer  # noqa: E402
+from jaxhop._viz.draw import RunStyle, policy_cross_sections, stride_paths  # noqa: E402
+from jaxhop._viz.plot import disturbance_figure, long_run_figure  # noqa: E402
 
 G, RHO0 = 9.81, 1.0
 
@@ -102,7 +103,7 @@ def test_animation_frames_follow_the_run_and_plant_each_foot():
 def test_animation_writer_rejects_unknown_formats(monkeypatch):
     from matplotlib.animation import writers
 
-    from jaxhop._errors import InputError
+    from jaxhop._core.errors import InputError
 
     with pytest.raises(InputError, match=r"\.gif or \.mp4"):
         animation_writer("run.avi", 25)
@@ -135,11 +136,12 @@ def flat():
     """The plan on `flat` and one nominal BHop run on it (built once, not cached)."""
     import jax
 
-    from jaxhop._execute import run_batch
-    from jaxhop._plan import build_plan
+    from jaxhop._execution.batches import run_batch
+    from jaxhop._planning.plan import build_plan
 
     plan = build_plan(builtin_terrain("flat"))
-    runs = run_batch(plan, [[0.4, 1.6, 0.5]], key=jax.random.key(0))
+    runs = run_batch(plan, [[0.4, 1.6, 0.5]], jaxhop.RunSettings(controller="paper"),
+                     key=jax.random.key(0))
     return plan, {k: v[0] for k, v in runs.items()}
 
 
@@ -165,8 +167,8 @@ def test_cross_sections_contain_the_apex_and_the_goal(flat):
 def test_open_loop_replay_reproduces_nominal_and_drifts_under_wind(flat):
     import jax
 
-    from jaxhop._execute import run_batch
-    from jaxhop._params import disturbance_for
+    from jaxhop._core.params import disturbance_for
+    from jaxhop._execution.batches import run_batch
 
     plan, nominal = flat
     steps = int(nominal["steps"])
@@ -179,8 +181,9 @@ def test_open_loop_replay_reproduces_nominal_and_drifts_under_wind(flat):
     wind = disturbance_for("wind")
     key = jax.random.key(3)
     replay = open_loop_replay(plan, nominal, disturbance=wind, key=key)
-    reactive = {k: v[0] for k, v in run_batch(plan, nominal["apexes"][:1], key=key,
-                                               disturbance=wind).items()}
+    reactive = {k: v[0] for k, v in run_batch(plan, nominal["apexes"][:1],
+                                              jaxhop.RunSettings(controller="paper"), key=key,
+                                              disturbance=wind).items()}
     n = min(int(replay["steps"]), int(reactive["steps"]))
     gap = np.abs(replay["apexes"][1 : n + 1] - reactive["apexes"][1 : n + 1])
     assert np.nanmax(gap) > 1e-3  # re-selection changes the controls under wind
@@ -189,7 +192,7 @@ def test_open_loop_replay_reproduces_nominal_and_drifts_under_wind(flat):
     last = replay["apexes"][int(replay["steps"])]
     assert np.isnan(last).all() or abs(last[0] - plan.goal[0]) > 0.05
     fig = disturbance_figure(plan.terrain, nominal, replay, reactive, plan.goal, "wind",
-                             wind=float(wind.wind))
+                             RunStyle(wind=float(wind.wind)))
     top, bottom = fig.axes
     for ax, other in ((top, replay), (bottom, reactive)):
         feet = [len(ln.get_xdata()) for ln in ax.lines if ln.get_marker() == "v"]

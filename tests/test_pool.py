@@ -5,10 +5,12 @@ import os
 import subprocess
 import sys
 
+import pytest
+
 _SCRIPT = r"""
 import json, time
 import jax, numpy as np, jaxhop
-from jaxhop import _pool
+from jaxhop._execution import pool as _pool
 
 plan = jaxhop.build_plan(jaxhop.builtin_terrain("flat"), progress=False)
 grid = jaxhop.sweep_grid(plan.terrain, dy=0.2, dz=0.2)
@@ -27,8 +29,9 @@ def attempt(seed):
         return real(pick, treedef, dev)
 
     _pool._lane_batch = slow
-    out = jaxhop.run_batch(plan, init, key=jax.random.key(2),
-                           disturbance=jaxhop.disturbance_for("sensor"), pool=True)
+    out = jaxhop.run_batch(plan, init, jaxhop.RunSettings(controller="paper"),
+                           key=jax.random.key(2), disturbance=jaxhop.disturbance_for("sensor"),
+                           execution=jaxhop.ExecSettings(pool=True))
     _pool._lane_batch = real
     return steps, np.nan_to_num(out["apexes"]).tolist(), out["steps"].tolist()
 
@@ -38,6 +41,7 @@ print(json.dumps({"devices": len(jax.devices()), "runs": len(init), "a": a, "b":
 """
 
 
+@pytest.mark.slow  # starts processes
 def test_runs_are_dealt_to_devices_in_a_fixed_order(tmp_path):
     env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2",
                JAXHOP_CACHE=str(tmp_path))
@@ -58,7 +62,7 @@ class _Device:
 
 
 def test_lane_count_follows_the_platform_and_the_override(monkeypatch):
-    from jaxhop import _pool
+    from jaxhop._execution import pool as _pool
 
     monkeypatch.delenv("JAXHOP_POOL_LANES", raising=False)
     assert _pool.pool_lanes(_Device("cpu")) == 32

@@ -1,4 +1,4 @@
-"""Programs kept on disk (`jaxhop._programs`): loaded instead of traced, keyed by what they
+"""Programs kept on disk (`jaxhop._core.programs`): loaded instead of traced, keyed by what they
 were traced from, and never trusted when unreadable."""
 
 import equinox as eqx
@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxhop import _programs
+from jaxhop._core import programs as _programs
 
 
 class Spring(eqx.Module):

@@ -23,10 +23,10 @@ import pytest
 import jaxhop
 from jaxhop import Disturbance, Hopper, build_plan, make_templates, paper_templates
 from jaxhop import reference as R
-from jaxhop._execute import run_batch, sweep_grid
-from jaxhop._flight import touchdown
-from jaxhop._models import decide
-from jaxhop._policies import template_boxes
+from jaxhop._control.decisions import decide
+from jaxhop._execution.batches import run_batch, sweep_grid
+from jaxhop._models.flight import touchdown
+from jaxhop._planning.policies import template_boxes
 
 SUBSET = [6, 7, 8, 9, 11, 12, 13, 14]
 TIE = 1e-9
@@ -238,8 +238,10 @@ def test_sweep_outcomes(name, full, noise):
     kw = {} if noise == "none" else {"wind": -0.2, "tolerance": (0.05, 0.05, 0.15)}
     initial = _initial(terrain, ctrl, 1 if noise == "none" else 20)
     ref = R.run_batch(ctrl, initial, **kw)
-    jx = run_batch(jp, initial, disturbance=Disturbance(wind=kw.get("wind", 0.0)),
-                   tolerance=kw.get("tolerance"), chunk=CHUNK)
+    jx = run_batch(jp, initial,
+                   jaxhop.RunSettings(tolerance=kw.get("tolerance"), controller="paper"),
+                   disturbance=Disturbance(wind=kw.get("wind", 0.0)),
+                   execution=jaxhop.ExecSettings(chunk=CHUNK))
     assert np.array_equal(ref["code"], jx["code"])
     assert np.array_equal(ref["steps"], jx["steps"])
     if noise == "none":
@@ -261,7 +263,9 @@ def test_sensor_noise_with_shared_draws():
 
     noise = np.asarray(jax.vmap(draws)(jnp.arange(initial.shape[0])))
     ref = R.run_batch(ctrl, initial, noise=noise)
-    jx = run_batch(jp, initial, key=key, disturbance=Disturbance(sensor=sensor), chunk=CHUNK)
+    jx = run_batch(jp, initial, jaxhop.RunSettings(controller="paper"), key=key,
+                   disturbance=Disturbance(sensor=sensor),
+                   execution=jaxhop.ExecSettings(chunk=CHUNK))
     assert np.array_equal(ref["code"], jx["code"])
     assert np.array_equal(ref["steps"], jx["steps"])
 
@@ -273,7 +277,8 @@ def test_end_to_end_sweep(name, full):
     rsum, rinit, rres = R.sweep(rp)
     jinit = sweep_grid(terrain)
     jinit = jinit[jaxhop.in_global_domain(jinit, jp.tables(), Hopper())]
-    jres = run_batch(jp, jinit, chunk=CHUNK)
+    jres = run_batch(jp, jinit, jaxhop.RunSettings(controller="paper"),
+                     execution=jaxhop.ExecSettings(chunk=CHUNK))
     jsum = R.summarize(jres, 0.0)
     assert np.array_equal(rinit, jinit)
     assert rsum["success_rate"] == jsum["success_rate"] == 1.0

@@ -6,7 +6,7 @@ and the JAX path with diffrax (Tsit5), both at rtol = atol = 1e-10, so strides a
 the JAX solver's damped Gauss-Newton iteration with a finite-difference Jacobian, so where
 the goal is reachable both reach it to ~1e-8, and where it is not (the controls clip), both
 stop at the same constrained point to ~1e-6. Sweep states: the SLIP decision (first match and
-deadbeat) of sampled sweep states must agree; runs of `jaxhop._execute.run_batch(model=
+deadbeat) of sampled sweep states must agree; runs of `jaxhop._execution.batches.run_batch(model=
 "slip")` and the twin must agree over their first strides and in most outcomes (see
 `test_slip_sweep_subsample_against_jax` for why not in every step count).
 
@@ -23,12 +23,13 @@ import pytest
 import jaxhop
 from jaxhop import Hopper, build_plan, make_templates, paper_templates
 from jaxhop import reference as R
-from jaxhop._execute import run_batch, sweep_grid
-from jaxhop._flight import COLLISION, HOLE, OFF_MAP, OK
-from jaxhop._models import decide
-from jaxhop._slip import slip_apex_map, slip_stride
-from jaxhop._slip_deadbeat import KAPPA_HI, KAPPA_LO, RATIO_HI, RATIO_LO, deadbeat_slip
-from jaxhop._terrain import make_terrain
+from jaxhop._control.decisions import decide
+from jaxhop._core.terrain import make_terrain
+from jaxhop._execution.batches import run_batch, sweep_grid
+from jaxhop._models.flight import COLLISION, HOLE, OFF_MAP, OK
+from jaxhop._models.slip.deadbeat import deadbeat_slip
+from jaxhop._models.slip.kernels import KAPPA_HI, KAPPA_LO, RATIO_HI, RATIO_LO
+from jaxhop._models.slip.stride import slip_apex_map, slip_stride
 from jaxhop.reference import _slip as RS
 
 HOP, RH = Hopper(), R.Hopper()
@@ -131,7 +132,7 @@ def jax_deadbeat(apex, goal, h):
 def compare_deadbeat(apex, goal, h):
     u, ok = jax_deadbeat(apex, goal, h)
     for i in range(len(apex)):
-        ur, okr = RS.deadbeat_slip(apex[i], goal[i], h[i], RH)
+        ur, okr = R.deadbeat_slip(apex[i], goal[i], h[i], RH)
         assert okr == ok[i], i
         nxt_j, cj = RS.slip_apex_map(apex[i], u[i], h[i], RH)
         nxt_r, cr = RS.slip_apex_map(apex[i], ur, h[i], RH)
@@ -155,7 +156,7 @@ def test_deadbeat_least_squares_reaches_targets():
     apex, goal, h = reachable_targets(11, 4)
     assert len(apex) >= 1
     for a, g, hh in zip(apex[:1], goal[:1], h[:1]):
-        u, ok = RS.deadbeat_slip(a, g, hh, RH, method="lm")
+        u, ok = R.deadbeat_slip(a, g, hh, RH, R.DeadbeatSearch(method="lm"))
         nxt, code = RS.slip_apex_map(a, u, hh, RH)
         assert ok and code == OK
         assert np.max(np.abs(nxt - g)) < 1e-6
@@ -224,7 +225,8 @@ def test_slip_sweep_subsample_against_jax():
     """
     terrain, jp, ctrl, initial = _flat_plans()
     sub = _subsample(initial, 12, seed=1)
-    out = run_batch(jp, sub, model="slip", chunk=16)
+    out = run_batch(jp, sub, jaxhop.RunSettings(model="slip", controller="paper"),
+                    execution=jaxhop.ExecSettings(chunk=16))
     # The run loop decides with the table-start deadbeat: so does the twin, on its values.
     tab = jp.tables(slip=True).slip
     ctrl.slip_table = tab.data()

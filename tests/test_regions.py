@@ -5,10 +5,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxhop._flight import OK, touchdown
-from jaxhop._params import Hopper
-from jaxhop._policies import ascent_y_bounds, descent_y_bounds
-from jaxhop._regions import (
+from jaxhop._core.params import Hopper
+from jaxhop._core.terrain import builtin_terrain, make_terrain
+from jaxhop._models.flight import OK, touchdown
+from jaxhop._planning.policies import ascent_y_bounds, descent_y_bounds
+from jaxhop._planning.regions import (
     feasible_goal_contains,
     feasible_goal_contains_brute,
     goal_height_bounds,
@@ -16,8 +17,7 @@ from jaxhop._regions import (
     goal_position_bounds,
     template_domain_contains,
 )
-from jaxhop._templates import paper_templates
-from jaxhop._terrain import builtin_terrain, make_terrain
+from jaxhop._planning.templates import paper_templates
 
 HOP = Hopper()
 TEMPLATES = paper_templates()

@@ -8,7 +8,7 @@ import sys
 
 import pytest
 
-from jaxhop._cli import main
+from jaxhop._cli.main import main
 
 COMMAND = ["sweep", "--terrain", "flat", "--noise", "sensor", "--seed", "11", "--dy", "0.1",
            "--dz", "0.1", "--chunk", "32"]
@@ -30,7 +30,7 @@ def test_same_command_twice_same_json(tmp_path):
 
 _FOUR = """
 import sys, jax
-from jaxhop._cli import main
+from jaxhop._cli.main import main
 rc = main(sys.argv[1:])
 print("devices", len(jax.devices()))
 sys.exit(rc)

@@ -11,9 +11,18 @@ import optimistix as optx
 import pytest
 from scipy.integrate import solve_ivp
 
-from jaxhop._flight import COLLISION, HOLE, OK
-from jaxhop._params import Hopper
-from jaxhop._slip import (
+from jaxhop._core.params import Hopper
+from jaxhop._core.terrain import make_terrain
+from jaxhop._models.flight import COLLISION, HOLE, OK
+from jaxhop._models.slip.bracket import golden_minimise
+from jaxhop._models.slip.deadbeat import DeadbeatSearch, deadbeat_slip
+from jaxhop._models.slip.kernels import (
+    KAPPA_HI,
+    KAPPA_LO,
+    RATIO_HI,
+    RATIO_LO,
+)
+from jaxhop._models.slip.stride import (
     COLLAPSED,
     Tolerances,
     _field,
@@ -23,15 +32,6 @@ from jaxhop._slip import (
     slip_apex_map,
     slip_stride,
 )
-from jaxhop._slip_bracket import golden_minimise
-from jaxhop._slip_deadbeat import (
-    KAPPA_HI,
-    KAPPA_LO,
-    RATIO_HI,
-    RATIO_LO,
-    deadbeat_slip,
-)
-from jaxhop._terrain import make_terrain
 
 HOP = Hopper()
 MG = HOP.m * HOP.g / HOP.rho0
@@ -124,7 +124,7 @@ def test_decision_strides_stay_within_a_tenth_of_a_millimetre_of_solve_ivp():
     # A controller's decision polishes and predicts at DECISION_TOL (docs/slip.md): its
     # strides must stay far inside the decision's 5 cm acceptance (measured: 5e-5 at most
     # on 2 000 strides; 1e-4, a looser tolerance, moves apexes by up to 7.6e-4).
-    from jaxhop._slip_deadbeat import DECISION_TOL
+    from jaxhop._models.slip.kernels import DECISION_TOL
 
     apex, u = random_strides(7, 40)
     loose = jax.jit(jax.vmap(lambda a, v: slip_stride(a, v, FLAT, HOP, 0.0, DECISION_TOL)))
@@ -166,7 +166,7 @@ def test_equal_stiffness_conserves_apex_energy():
 
 
 def test_slip_strides_in_device_chunks_equal_single_strides():
-    from jaxhop._slip import slip_strides
+    from jaxhop._models.slip.stride import slip_strides
 
     apex, u = random_strides(6, 40)
     nxt, code, foot = slip_strides(apex, u, FLAT, HOP)
@@ -352,7 +352,8 @@ def reachable_targets(seed, n, extra=()):
 
 def deadbeat_errors(method, seed, n, extra=()):
     apex, goal = reachable_targets(seed, n, extra)
-    solve = jax.jit(jax.vmap(lambda a, g: deadbeat_slip(a, g, 0.0, HOP, method=method)))
+    search = DeadbeatSearch(method=method)
+    solve = jax.jit(jax.vmap(lambda a, g: deadbeat_slip(a, g, 0.0, HOP, search)))
     u, ok = solve(apex, goal)
     nxt, code = apex_map_batch(apex, u, 0.0, HOP)
     err = np.abs(np.asarray(nxt - goal))
@@ -376,8 +377,8 @@ def test_gradient_solver_never_tries_a_non_finite_point(monkeypatch):
     # diffrax's MAX_STEPS (~0.13 s each, 16 times), stalling a whole vmapped batch. The
     # case: a backward-moving apex over reference's goal block asked to reverse onto a
     # goal whose foothold lies behind the 0.35 m block's edge.
-    from jaxhop import _slip_deadbeat as D
-    from jaxhop._terrain import builtin_terrain
+    from jaxhop._core.terrain import builtin_terrain
+    from jaxhop._models.slip import kernels as D
 
     seen = []
     residual = D._residual

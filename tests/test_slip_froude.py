@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 from jaxhop import Hopper, builtin_terrain, paper_templates
-from jaxhop._cache import plan_key
-from jaxhop._regions import foot_lead, slip_shift_limits
-from jaxhop._slip import slip_strides
-from jaxhop._templates import SlipAdjust, scaled_templates
-from jaxhop._terrain import make_terrain
+from jaxhop._core.terrain import make_terrain
+from jaxhop._models.slip.stride import slip_strides
+from jaxhop._planning.cache import plan_key
+from jaxhop._planning.regions import foot_lead, slip_shift_limits
+from jaxhop._planning.templates import SlipAdjust, scaled_templates
 from jaxhop.parkour import leg_hopper, leg_templates
 
 REFERENCE = Hopper()

@@ -7,12 +7,13 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+import jaxhop
 from jaxhop import Hopper, builtin_terrain, paper_templates
-from jaxhop._plan import templates_for
-from jaxhop._policies import candidate_situated, situated_table
-from jaxhop._regions import foot_lead, slip_shift_limits, template_domain_contains
-from jaxhop._templates import SlipAdjust
-from jaxhop._terrain import segments
+from jaxhop._core.terrain import segments
+from jaxhop._planning.plan import templates_for
+from jaxhop._planning.policies import candidate_situated, situated_table
+from jaxhop._planning.regions import foot_lead, slip_shift_limits, template_domain_contains
+from jaxhop._planning.templates import SlipAdjust
 
 HOPPER = Hopper()
 
@@ -122,7 +123,7 @@ def test_candidate_situated_uses_the_slip_foot():
 
 
 def test_slip_cache_key_differs():
-    from jaxhop._cache import plan_key
+    from jaxhop._planning.cache import plan_key
 
     terrain = builtin_terrain("flat")
     a = plan_key(terrain, terrain.goal, templates_for("bhop"), HOPPER)
@@ -144,7 +145,7 @@ def test_fitted_eq35_band_holds_most_slip_strides():
     # fresh sample (other seed) the band [h(v_avg), -h(-v_avg)] must hold roughly 80 % of
     # the BHop-equivalent shifts, and the printed constants' band (which holds everything,
     # being +-0.7 m wide at least) must not be what we use.
-    from jaxhop._slip import flat_touchdown, slip_apex_map
+    from jaxhop._models.slip.stride import flat_touchdown, slip_apex_map
 
     rng = np.random.default_rng(11)
     n = 3000
@@ -174,7 +175,7 @@ def _random_strides(seed, n, ydot, th, zr_lo=0.1):
     """Simulated flat-ground strides from apexes at y = 0 with random height, leg
     stiffnesses (kc 10-60 mg, kd within a factor 2 of it) and the given speeds and
     touchdown angles (functions of the seeded generator): `(apex, u, next_apex, code)`."""
-    from jaxhop._slip import slip_apex_map
+    from jaxhop._models.slip.stride import slip_apex_map
 
     rng = np.random.default_rng(seed)
     ydot = ydot(rng, n)
@@ -192,7 +193,7 @@ def test_a_reversing_stride_lifts_off_behind_its_foot():
     # strides: the leg force points away from the foot, so a stance that turns forward
     # motion backward ends with the COM (and the BHop-equivalent liftoff point, further
     # along the backward ascent) behind the foot; mirrored for backward-to-forward.
-    from jaxhop._slip import flat_touchdown
+    from jaxhop._models.slip.stride import flat_touchdown
 
     # The foot planted ahead (the touchdown angle's sign the speed's): slows or reverses.
     apex, u, nxt, code = _random_strides(
@@ -257,8 +258,8 @@ def test_a_stride_moving_backward_before_and_after_never_moves_forward():
 def _perceived_plan(templates):
     """The plan of `templates` on the perceived map of `--noise ground` seed 0, and the true
     map."""
-    from jaxhop._cli import _perceived
-    from jaxhop._plan import build_plan
+    from jaxhop._cli.main import _perceived
+    from jaxhop._planning.plan import build_plan
 
     true = builtin_terrain("reference")
     return build_plan(_perceived(true, 0), None, templates, progress=False), true
@@ -277,14 +278,15 @@ def test_slip_reaches_the_goal_where_reversing_goals_made_it_cycle(perceived_sli
     # reversing, and runs from these apexes cycled through three policies until
     # max_steps (0 of 48 sweep states succeeded). The success test is the goal
     # tolerance: the true apex within 0.05 of the goal in every coordinate.
-    from jaxhop._execute import run_batch
-    from jaxhop._models import in_global_domain
+    from jaxhop._control.decisions import in_global_domain
+    from jaxhop._execution.batches import run_batch
 
     plan, true = perceived_slip_plan
     starts = np.array([[8.984, 1.51, 0.162], [8.953, 1.487, -0.097], [9.021, 1.506, -0.085],
                        [8.613, 1.777, 1.604]])
     assert in_global_domain(starts, plan.tables(), HOPPER).all()
-    out = run_batch(plan, starts, key=jax.random.key(0), true_terrain=true, model="slip")
+    out = run_batch(plan, starts, jaxhop.RunSettings(model="slip", controller="paper"),
+                    key=jax.random.key(0), true_terrain=true)
     assert np.all(out["code"] == 0), out["code"]
     assert np.all(out["steps"] <= 30), out["steps"]
     last = np.array([a[int(s)] for a, s in zip(out["apexes"], out["steps"])])
@@ -304,10 +306,11 @@ def test_a_slip_miss_that_stays_put_is_decided_again():
     # over 7-9.6 m of this map's domains meets the premise.)
     import dataclasses
 
-    from jaxhop._execute import run_batch
-    from jaxhop._models import SLIP_ACCEPT, decide_slip, first_match
-    from jaxhop._slip import slip_stride
-    from jaxhop._slip_deadbeat import SEARCH_TOL, deadbeat_slip
+    from jaxhop._control.decisions import SLIP_ACCEPT, decide_slip, first_match
+    from jaxhop._execution.batches import run_batch
+    from jaxhop._models.slip.deadbeat import DeadbeatSearch, deadbeat_slip
+    from jaxhop._models.slip.kernels import SEARCH_TOL
+    from jaxhop._models.slip.stride import slip_stride
 
     adjust = dataclasses.replace(templates_for("slip").slip, keep_direction=False)
     plan, true = _perceived_plan(paper_templates().for_slip(adjust))
@@ -318,7 +321,8 @@ def test_a_slip_miss_that_stays_put_is_decided_again():
     assert found and goal[0] - apex[0] > 0.1 and goal[2] < 0
     # The premise, from the deadbeat and the stride themselves: the best miss stays put.
     h = tables.table.centre[sit // tables.templates.n, 1]
-    u, _ = deadbeat_slip(apex, goal, h, HOPPER, terrain=tables.terrain, table=tables.slip)
+    u, _ = deadbeat_slip(apex, goal, h, HOPPER, DeadbeatSearch(table=tables.slip),
+                         terrain=tables.terrain)
     pred, code, _ = slip_stride(apex, u, tables.terrain, HOPPER, 0.0, SEARCH_TOL)
     scale = np.asarray(SLIP_ACCEPT)
     miss = float(np.max(np.abs(pred - goal) / scale))
@@ -328,14 +332,15 @@ def test_a_slip_miss_that_stays_put_is_decided_again():
 
     _, _, chosen, recovered = decide_slip(apex, tables, HOPPER, recover=True)
     assert int(chosen) != int(inst) and bool(recovered)
-    out = run_batch(plan, np.asarray(apex)[None], key=jax.random.key(0), true_terrain=true,
-                    model="slip", controller="adaptive", max_steps=12)
+    out = run_batch(plan, np.asarray(apex)[None],
+                    jaxhop.RunSettings(model="slip", controller="adaptive", max_steps=12),
+                    key=jax.random.key(0), true_terrain=true)
     assert out["code"][0] == 0, (out["code"], out["steps"])
 
 
 @pytest.fixture(scope="module")
 def reference_slip_plan():
-    from jaxhop._plan import build_plan
+    from jaxhop._planning.plan import build_plan
 
     return build_plan(builtin_terrain("reference"), None, templates_for("slip"),
                       progress=False)
@@ -349,11 +354,11 @@ def test_without_disturbance_both_slip_controllers_run_alike_to_the_last_bit(
     # SLIP controller runs through the same compiled program with them switched off. From
     # (5.6, 1.8, 0.5) the two used to start 3.5e-15 apart, and the adaptive run reached the
     # goal one stride earlier.
-    from jaxhop._execute import run_batch
+    from jaxhop._execution.batches import run_batch
 
     starts = np.array([[5.6, 1.8, 0.5], [2.0, 1.6, 0.5], [6.6, 1.8, 0.5]])
-    out = {c: run_batch(reference_slip_plan, starts, key=jax.random.key(0), model="slip",
-                        controller=c) for c in ("paper", "adaptive")}
+    out = {c: run_batch(reference_slip_plan, starts, jaxhop.RunSettings(model="slip", controller=c),
+                        key=jax.random.key(0)) for c in ("paper", "adaptive")}
     assert (out["paper"]["code"] == 0).all()
     for field in ("code", "steps", "policies", "recoveries"):
         np.testing.assert_array_equal(out["paper"][field], out["adaptive"][field])
@@ -369,8 +374,8 @@ def test_a_sweeps_slip_domain_keeps_the_states_whose_first_stride_stays_in_the_d
     # past 10 m to turn back) and at the edge over the hole at 4.2 m. The check is the
     # first stride of whole runs (the paper's controller, no noise) and the domain test of
     # the apex it reaches.
-    from jaxhop._execute import run_batch, slip_verified
-    from jaxhop._models import in_global_domain
+    from jaxhop._control.decisions import in_global_domain
+    from jaxhop._execution.batches import run_batch, slip_verified
 
     plan = reference_slip_plan
     tables = plan.tables()
@@ -378,7 +383,8 @@ def test_a_sweeps_slip_domain_keeps_the_states_whose_first_stride_stays_in_the_d
                        [6.6, 1.8, 0.5]])
     assert in_global_domain(starts, tables, HOPPER).all()
     verified = slip_verified(starts, plan)
-    one = run_batch(plan, starts, key=jax.random.key(0), model="slip", controller="paper")
+    one = run_batch(plan, starts, jaxhop.RunSettings(model="slip", controller="paper"),
+                    key=jax.random.key(0))
     nxt = one["apexes"][:, 1]
     completed = np.all(np.isfinite(nxt), axis=1)
     expected = completed & in_global_domain(np.where(completed[:, None], nxt, 0.0), tables,
@@ -390,8 +396,8 @@ def test_a_sweeps_slip_domain_keeps_the_states_whose_first_stride_stays_in_the_d
 def _froude_tables(tables, hopper):
     """`tables` of the reference hopper's plan, every length, speed and energy Froude-scaled
     to `hopper`: the same plan for a hopper of another size."""
-    from jaxhop._params import froude_scales
-    from jaxhop._templates import scaled_templates
+    from jaxhop._core.params import froude_scales
+    from jaxhop._planning.templates import scaled_templates
 
     f = froude_scales(hopper)
     length, speed = f["length"], f["velocity"]
@@ -415,10 +421,10 @@ def test_a_slip_decision_for_a_small_leg_is_the_reference_decision_in_froude_uni
     # Froude-scaled). The acceptance of a candidate's predicted miss is part of it:
     # unscaled (0.05 m on a 0.19 m leg) the leg accepts first candidates that miss by up to
     # 26 % of its leg length, which the reference hopper rejects (5 %).
-    from jaxhop._execute import sweep_grid
-    from jaxhop._models import decide_slip, in_global_domain
-    from jaxhop._slip import slip_stride
-    from jaxhop._slip_deadbeat import SEARCH_TOL
+    from jaxhop._control.decisions import decide_slip, in_global_domain
+    from jaxhop._execution.batches import sweep_grid
+    from jaxhop._models.slip.kernels import SEARCH_TOL
+    from jaxhop._models.slip.stride import slip_stride
     from jaxhop.parkour import leg_hopper
 
     leg = leg_hopper()
@@ -444,7 +450,7 @@ def test_a_slip_decision_for_a_small_leg_is_the_reference_decision_in_froude_uni
             np.testing.assert_allclose(u1[1:], u0[1:] * stiff, rtol=1e-4)
     assert reached >= 4
     # The twin scales its acceptance the same way; the reference hopper keeps the constants.
-    from jaxhop._models import SLIP_ACCEPT, SLIP_STAGE_C2, _slip_scales
+    from jaxhop._control.decisions import SLIP_ACCEPT, SLIP_STAGE_C2, _slip_scales
     from jaxhop.reference._execute import slip_scales
 
     assert np.array_equal(np.asarray(_slip_scales(HOPPER)[0]), SLIP_ACCEPT)
@@ -463,7 +469,7 @@ def test_goal_policies_reach_a_goal_at_rest_on_its_own_segment_only():
     # from there cannot come back), and not by any segment without the slack.
     import dataclasses
 
-    from jaxhop._policies import goal_policy_margin
+    from jaxhop._planning.policies import goal_policy_margin
 
     terrain, slip, table, centre, k = _flat_slip_table()
     t = int(np.nonzero((np.asarray(slip.v_lo) == 0.0) & (np.asarray(slip.v_hi) > 0.0))[0][0])

@@ -1,4 +1,4 @@
-"""The SLIP deadbeat's start table (`jaxhop._slip_table`) and the staged table-start solve.
+"""The SLIP deadbeat's start table (`jaxhop._models.slip.table`) and the staged table-start solve.
 
 Independent checks: table entries against the twin's `solve_ivp` strides of a full-size
 hopper (the table is built for a unit hopper: Froude scaling must carry it to any size);
@@ -14,9 +14,9 @@ import pytest
 
 from jaxhop import Hopper
 from jaxhop import reference as R
-from jaxhop._slip import slip_apex_map
-from jaxhop._slip_deadbeat import KAPPA_HI, KAPPA_LO
-from jaxhop._slip_table import (
+from jaxhop._models.slip.kernels import KAPPA_HI, KAPPA_LO
+from jaxhop._models.slip.stride import slip_apex_map
+from jaxhop._models.slip.table import (
     DEFAULT_GRID,
     TableGrid,
     _refine,
@@ -113,8 +113,8 @@ def test_staged_solve_equals_twin(table):
     u, ok, stage = deadbeat_slips(apex, goal, 0.0, HOP, table)
     values = table.data()
     for i in range(apex.shape[0]):
-        ur, okr, _ = RS.deadbeat_slip(apex[i], goal[i], 0.0, R.Hopper(), table=values,
-                                      full=True)
+        ur, okr, _ = R.deadbeat_slip(apex[i], goal[i], 0.0, R.Hopper(),
+                                     R.DeadbeatSearch(table=values), full=True)
         assert okr == bool(ok[i])
         nxt, code = RS.slip_apex_map(apex[i], ur, 0.0, R.Hopper())
         assert code == 0
@@ -123,7 +123,7 @@ def test_staged_solve_equals_twin(table):
 
 def test_starts_avoid_touchdowns_off_the_foothold(table):
     """With a terrain, a touchdown angle whose foot lands on another block is no start."""
-    from jaxhop._terrain import make_terrain
+    from jaxhop._core.terrain import make_terrain
 
     terrain = make_terrain([(-3.0, 0.3, 0.0), (0.3, 3.0, 0.4)])
     apex = jnp.array([0.0, 1.6, 1.0])
@@ -142,8 +142,8 @@ def test_polish_reaches_the_box_minimum_on_the_stiffness_bound(table, apex, goal
     """Targets out of one stride's reach whose least C2 over the control box lies at the
     stiffest spring (brute force over a 241 x 21 grid of `(th_td, s)`): the staged solve
     without the multi-start solver ends at least as low as the grid's best point."""
-    from jaxhop._slip_deadbeat import SEARCH_TOL, _residual, kc_limits
-    from jaxhop._slip_table import _deadbeat_table
+    from jaxhop._models.slip.kernels import SEARCH_TOL, _residual, kc_limits
+    from jaxhop._models.slip.table import deadbeat_table
 
     apex, goal = jnp.asarray(apex), jnp.asarray(goal)
     p = jnp.stack(jnp.meshgrid(jnp.linspace(-0.6, 0.6, 241), jnp.linspace(0.0, 1.0, 21),
@@ -151,7 +151,7 @@ def test_polish_reaches_the_box_minimum_on_the_stiffness_bound(table, apex, goal
     r = jax.jit(jax.vmap(lambda q: _residual(q, apex, goal, 0.0, HOP, SEARCH_TOL)))(p)
     c2 = np.sum(np.asarray(r) ** 2, axis=1)
     assert p[np.argmin(c2), 1] == 1.0 and c2.min() > 1e-3  # on the bound, out of reach
-    th, kc, c, _ = jax.jit(lambda a, g: _deadbeat_table(a, g, 0.0, HOP, SEARCH_TOL, table,
+    th, kc, c, _ = jax.jit(lambda a, g: deadbeat_table(a, g, 0.0, HOP, SEARCH_TOL, table,
                                                         fallback=False, accept=1e-4))(apex, goal)
     assert float(kc) == pytest.approx(kc_limits(HOP)[1])
     assert float(c) <= c2.min()
@@ -162,15 +162,16 @@ def test_no_table_start_runs_the_multi_start_solver(table):
     the solve runs the multi-start solver's starts without being asked to, and its controls
     reach the goal on the twin's stride (solve_ivp) over the same map within 1 mm."""
     from jaxhop import builtin_terrain
-    from jaxhop._slip_deadbeat import deadbeat_slip
+    from jaxhop._models.slip.deadbeat import DeadbeatSearch, deadbeat_slip
 
     terrain = builtin_terrain("reference")
     apex = jnp.array([8.25, 1.5, 0.5])
     goal = jnp.array([8.76673, 1.43491, 1.08242])
     _, errs = table_starts(table, apex, goal, 0.35, HOP, 3, terrain)
     assert not np.any(np.isfinite(np.asarray(errs)))
-    u, ok = jax.jit(lambda a, g: deadbeat_slip(a, g, 0.35, HOP, terrain=terrain, table=table,
-                                               fallback=False, accept=1e-4))(apex, goal)
+    search = DeadbeatSearch(table=table, fallback=False, accept=1e-4)
+    u, ok = jax.jit(lambda a, g: deadbeat_slip(a, g, 0.35, HOP, search, terrain=terrain))(
+        apex, goal)
     assert bool(ok)
     twin_terrain = R.Terrain.from_blocks(terrain.blocks())
     nxt, code, _ = RS.slip_stride(np.asarray(apex), np.asarray(u), twin_terrain, R.Hopper())
@@ -183,10 +184,11 @@ def test_predicted_stride_is_the_stride_of_the_controls(table):
     it where no control was clipped: it must equal `slip_stride` with those controls on the
     same map (apex, and whether the stride succeeds, clearance checks included), clipped or
     not, with and without wind, next to a tall block that some strides sweep over."""
-    from jaxhop._flight import OK
-    from jaxhop._slip import slip_stride
-    from jaxhop._slip_deadbeat import SEARCH_TOL, deadbeat_slip
-    from jaxhop._terrain import make_terrain
+    from jaxhop._core.terrain import make_terrain
+    from jaxhop._models.flight import OK
+    from jaxhop._models.slip.deadbeat import DeadbeatSearch, deadbeat_slip
+    from jaxhop._models.slip.kernels import SEARCH_TOL
+    from jaxhop._models.slip.stride import slip_stride
 
     terrain = make_terrain([(-4.0, 1.1, 0.0), (1.1, 1.3, 0.8), (1.3, 5.0, 0.0)])
     rng = np.random.default_rng(7)
@@ -198,8 +200,8 @@ def test_predicted_stride_is_the_stride_of_the_controls(table):
     wind = np.where(np.arange(n) % 2 == 0, 0.0, rng.uniform(-0.5, 0.5, n))
 
     def both(a, g, w):
-        u, ok, pred, code = deadbeat_slip(a, g, 0.0, HOP, terrain=terrain, wind=w,
-                                          table=table, fallback=False, accept=1e-4,
+        search = DeadbeatSearch(table=table, fallback=False, accept=1e-4)
+        u, ok, pred, code = deadbeat_slip(a, g, 0.0, HOP, search, terrain=terrain, wind=w,
                                           predict=True)
         ref, ref_code, _ = slip_stride(a, u, terrain, HOP, w, SEARCH_TOL)
         return ok, pred, code, ref, ref_code
@@ -215,5 +217,5 @@ def test_predicted_stride_is_the_stride_of_the_controls(table):
     assert np.sum(ok & ~good) >= 1
     assert np.sum(~ok) >= 5
     with pytest.raises(ValueError, match="terrain"):
-        deadbeat_slip(jnp.asarray(apex[0]), jnp.asarray(goal[0]), 0.0, HOP, table=table,
-                      predict=True)
+        deadbeat_slip(jnp.asarray(apex[0]), jnp.asarray(goal[0]), 0.0, HOP,
+                      DeadbeatSearch(table=table), predict=True)

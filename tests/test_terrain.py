@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from jaxhop import InputError
-from jaxhop._terrain import (
+from jaxhop._core.terrain import (
     builtin_terrain,
     load_terrain,
     make_terrain,

@@ -19,6 +19,7 @@ from ._course import reference_results as reference_results
 from ._jump import min_time_jump as min_time_jump
 from ._observe import Observer as Observer
 from ._plan import MPPC as MPPC
+from ._plan import EnvData as EnvData
 from ._plan import Jump as Jump
 from ._plan import Plan as Plan
 from ._plan import Settings as Settings

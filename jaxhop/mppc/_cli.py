@@ -8,8 +8,8 @@ the figure. Courses and results: docs/mppc.md.
 import json
 from pathlib import Path
 
-from .._errors import InputError
-from .._progress import Progress
+from .._core.errors import InputError
+from .._core.progress import Progress
 from ._plan import MPPC, Settings
 from ._run import run_course
 

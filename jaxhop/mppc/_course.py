@@ -11,9 +11,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .._errors import InputError
-from .._validate import number
-from .._validate import short as _short
+from .._core.errors import InputError
+from .._core.validate import number
+from .._core.validate import short as _short
 
 _DATA = "data/courses"
 _TOP_KEYS = {"name", "start", "goal", "obstacles", "restricted", "margins", "snapshots"}

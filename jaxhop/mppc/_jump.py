@@ -83,8 +83,7 @@ def _start_inside(robot, x0, z0, c, s, front, back, height):
     return out
 
 
-def min_time_jump(robot: Robot, x0, z0, x1, z1, front, back, height, margin_v, wind=None,
-                  room=None):
+def min_time_jump(robot: Robot, start, end, blocks, margin_v, wind=None, room=None):
     """The minimum-flight-time feasible jump from one contact point to another.
 
     Constraints: eq 5 bounds on `v`, `theta`, `t`; ballistic flight (eqs 6-9) with the
@@ -95,8 +94,9 @@ def min_time_jump(robot: Robot, x0, z0, x1, z1, front, back, height, margin_v, w
 
     **Arguments:**
     - `robot`: the leg.
-    - `x0, z0`: takeoff contact point; `x1, z1`: landing contact point (scalars).
-    - `front, back, height`: the blocks to respect (padding: far ahead).
+    - `start = (x0, z0)`: takeoff contact point; `end = (x1, z1)`: landing contact point
+      (scalars).
+    - `blocks = (front, back, height)`: the blocks to respect (padding: far ahead).
     - `margin_v`: vertical clearance margin.
     - `wind`: horizontal acceleration during the flight (m/s^2, scalar); `None` (the
       default) for still air. The jump lands on `(x1, z1)` when flown with this wind.
@@ -107,6 +107,7 @@ def min_time_jump(robot: Robot, x0, z0, x1, z1, front, back, height, margin_v, w
 
     **Returns:** `(ok, t, v, theta)`: feasibility and the minimum-time jump.
     """
+    (x0, z0), (x1, z1), (front, back, height) = start, end, blocks
     ok, t, v, tan = min_time_jump_tan(robot, x0, z0, x1, z1, front, back, height, margin_v,
                                       wind, room)
     return ok, t, v, jnp.arctan(tan)

@@ -18,7 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._batching import bucket
+from .._core.batching import bucket
 from ._course import Course, Environment
 from ._jump import min_time_jump_tan
 from ._polish import polish_path
@@ -238,7 +238,7 @@ def landing_point(robot: Robot, jump_xs, jump_zs, v, theta, t, wind: float = 0.0
     return x1, z1
 
 
-class _EnvData:
+class EnvData:
     """Per-environment data: candidates, heights, legality and goal reachability, for one
     extra room (`Settings.round_room`; the goal stays legal whatever the room)."""
 
@@ -344,7 +344,7 @@ class MPPC:
         return np.asarray(_backward_reach(ok, len(x) - 1))[: len(x)]
 
     # --- one replan ---------------------------------------------------------------------
-    def replan(self, course: Course, data: _EnvData, x_s: float, z_s: float,
+    def replan(self, course: Course, data: EnvData, x_s: float, z_s: float,
                wind: float | None = None) -> Plan | None:
         """Plan the horizon from contact point `(x_s, z_s)` on the environment of `data`.
 

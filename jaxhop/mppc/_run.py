@@ -15,7 +15,7 @@ import numpy as np
 
 from ._check import check_jump
 from ._course import Course
-from ._plan import MPPC, _EnvData
+from ._plan import MPPC, EnvData
 
 
 class Replanner:
@@ -28,12 +28,12 @@ class Replanner:
 
     def __init__(self, planner: MPPC, course: Course):
         self.planner, self.course = planner, course
-        self._data: dict[tuple, _EnvData] = {}
+        self._data: dict[tuple, EnvData] = {}
 
     def warm_up(self, x: float, z: float, times: int, wind: float | None = None) -> None:
         """Plan the first horizon from `(x, z)` `times` times, untimed and not kept, so that
         compilation (once per set of padded sizes) is not counted in the replan times."""
-        data = _EnvData(self.planner, self.course, self.course.environment_at(0))
+        data = EnvData(self.planner, self.course, self.course.environment_at(0))
         for _ in range(times):
             self.planner.replan(self.course, data, x, z, wind)
 
@@ -42,7 +42,7 @@ class Replanner:
         """Replan `k` from contact point `(x, z)`; `z=None`: the surface under `x`.
 
         `wind` (m/s^2) and `room` (m, rounded up by `Settings.round_room`): see
-        `MPPC.replan` and `_EnvData`.
+        `MPPC.replan` and `EnvData`.
 
         **Returns:** `(plan, env, ms)`: the `Plan` (`None` if no jump is possible), the
         environment it was planned on and the replan's wall time in milliseconds (a new
@@ -53,7 +53,7 @@ class Replanner:
         room = self.planner.settings.round_room(room)
         data = self._data.get((id(env), room))
         if data is None:
-            data = self._data[(id(env), room)] = _EnvData(self.planner, self.course, env,
+            data = self._data[(id(env), room)] = EnvData(self.planner, self.course, env,
                                                           room)
         if z is None:
             z = float(env.surface(x))

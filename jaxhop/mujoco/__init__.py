@@ -3,11 +3,12 @@
 Model: `Mechanics` (leg and foot masses, friction, servoes, contact), `IDEAL` (the SLIP's
 idealisation), `hopper_xml` (the MJCF of a hopper over a terrain). Simulation:
 `Simulator` (one stride at a time). Closed-loop runs under jaxhop's reactive controller:
-`Controller`, `run_one`, `run_many` (over processes) with `Job` / `job_for`,
+`Controller`, `run_many` (over processes) and `run_recorded` (one run with its
+trajectory) with `Job` / `job_for`,
 `summarize_runs`. `docs/mujoco.md` describes the model and its decisions.
 """
 
-from .._errors import InputError as _InputError
+from .._core.errors import InputError as _InputError
 
 
 class MissingExtra(_InputError, ImportError):
@@ -31,7 +32,6 @@ from ._run import Controller as Controller
 from ._run import Job as Job
 from ._run import job_for as job_for
 from ._run import run_many as run_many
-from ._run import run_one as run_one
 from ._run import run_recorded as run_recorded
 from ._run import summarize_runs as summarize_runs
 from ._sim import Simulator as Simulator

@@ -21,9 +21,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._errors import InputError
-from .._params import Hopper
-from .._terrain import Terrain
+from .._core.errors import InputError
+from .._core.params import Hopper
+from .._core.terrain import Terrain
 
 # Blocks reach this far below the lowest block top (m, times rho0): below the hole depth.
 DEPTH = 1.5

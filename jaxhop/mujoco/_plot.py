@@ -9,9 +9,9 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from .._draw import draw_terrain  # noqa: E402
-from .._result import result_name  # noqa: E402
-from .._terrain import Terrain  # noqa: E402
+from .._core.result import result_name  # noqa: E402
+from .._core.terrain import Terrain  # noqa: E402
+from .._viz.draw import draw_terrain  # noqa: E402
 
 
 def _title(run: dict) -> str:
@@ -51,7 +51,7 @@ def animate_trajectory(terrain: Terrain, run: dict, trajectory: np.ndarray, path
                        goal=None, fps: int = 25, dpi: int = 80) -> str:
     """Write an animation of one run (`.gif` with Pillow, `.mp4` with ffmpeg): the body, its
     leg to the foot and the footholds, sampled from the trajectory at `fps`."""
-    from .._animate import animation_writer, write_animation
+    from .._viz.animate import animation_writer, write_animation
 
     writer = animation_writer(path, fps)
     tr = np.asarray(trajectory, float)

@@ -3,7 +3,7 @@
 At every apex of the body (its vertical velocity crossing zero in flight) the runner
 measures the body's state (plus sensor noise), asks the controller for the controls
 `(th_td, kc, kd)` and simulates the stride (`Simulator.stride`). The decision is the one
-jaxhop's run loop makes for the SLIP model (`jaxhop._runloop`): `Model.decide` with the
+jaxhop's run loop makes for the SLIP model (`jaxhop._control.runloop`): `Model.decide` with the
 paper's controller, `Model.decide_adaptive` (recovery outside the domains, the map
 corrected by the sensed footholds, a re-planned `kd` at the bottom of a stance whose
 foothold differs from the map) with the adaptive one. It is jitted once per process and
@@ -20,9 +20,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._params import Disturbance
-from .._result import Result
-from .._terrain import Terrain
+from .._core.params import Disturbance
+from .._core.result import Result
+from .._core.terrain import Terrain
 from ._model import DEFAULT, Mechanics
 from ._sim import Simulator
 
@@ -57,8 +57,8 @@ class Controller:
     def __init__(self, plan, controller: str = "adaptive"):
         import jax
 
-        from .._models import SLIP
-        from .._runloop import check_controller
+        from .._control.decisions import SLIP
+        from .._control.runloop import check_controller
 
         self.plan, self.tables, self.hopper = plan, plan.tables(), plan.hopper
         self.adaptive = check_controller(controller) == "adaptive"
@@ -70,7 +70,7 @@ class Controller:
     def _decision(self, measured, footholds, tables, hopper):
         import jax.numpy as jnp
 
-        from .._foothold import corrected_heights
+        from .._control.foothold import corrected_heights
 
         if not self.adaptive:
             found, u, a = self._model.decide(measured, tables, hopper)
@@ -88,7 +88,7 @@ class Controller:
 
 
 def _remember(footholds, foot, k):
-    from .._foothold import remember
+    from .._control.foothold import remember
 
     return remember(footholds, foot, True, k)
 
@@ -102,7 +102,7 @@ def _noise(key, i, k):
 
 def _mapped_height(foot, heights, terrain: Terrain) -> float:
     """The corrected map's height under `foot` (NaN off the map; on a shared edge the
-    block nearer in height), as `jaxhop._foothold.mapped_height`."""
+    block nearer in height), as `jaxhop._control.foothold.mapped_height`."""
     starts, ends = np.asarray(terrain.starts), np.asarray(terrain.ends)
     on = (foot[0] >= starts) & (foot[0] <= ends)
     if not on.any():
@@ -111,7 +111,7 @@ def _mapped_height(foot, heights, terrain: Terrain) -> float:
 
 
 def run_one(sim: Simulator, ctrl: Controller, apex0, index: int, key, sensor, tolerance,
-            max_steps: int = 60, goal=None, record: list | None = None) -> dict:
+            max_steps: int = 60, *, record: list | None = None) -> dict:
     """One closed-loop run from the apex `apex0`: the fields of `jaxhop.run_batch`.
 
     Arguments:
@@ -119,12 +119,12 @@ def run_one(sim: Simulator, ctrl: Controller, apex0, index: int, key, sensor, to
         sensor: half-widths of the uniform apex measurement noise on `(y, z, ydot)`.
         record: a list that receives the trajectory rows of `Simulator.stride`.
     """
-    from .._foothold import footholds_init
-    from .._runloop import RECOVERY_STREAK
-    from .._slip import bottom_kd
+    from .._control.foothold import footholds_init
+    from .._control.runloop import RECOVERY_STREAK
+    from .._models.slip.stride import bottom_kd
 
     hopper, tables = ctrl.hopper, ctrl.tables
-    goal = np.asarray(ctrl.plan.goal if goal is None else goal, float)
+    goal = np.asarray(ctrl.plan.goal, float)
     tolerance, sensor = np.asarray(tolerance, float), np.asarray(sensor, float)
     apexes = np.full((max_steps + 1, 3), np.nan)
     feet = np.full((max_steps, 2), np.nan)
@@ -182,7 +182,7 @@ def _start(job: Job):
     """A process's simulator and controller."""
     import jax
 
-    from .._terrain import terrain_from_dict
+    from .._core.terrain import terrain_from_dict
 
     _worker.update(job=job, sim=Simulator(job.plan.hopper, terrain_from_dict(job.terrain),
                                           job.mech),
@@ -220,7 +220,7 @@ def run_many(job: Job, initial, processes: int | None = None, progress: bool = F
         dict of NumPy arrays, the fields of `jaxhop.run_batch` and `why`, what ended a failed
         stride (`RUN_FIELDS`).
     """
-    from .._progress import Progress
+    from .._core.progress import Progress
 
     initial = np.atleast_2d(np.asarray(initial, float))
     n = initial.shape[0]
@@ -278,8 +278,8 @@ def summarize_runs(result: dict, seconds: float) -> dict:
     and what ended the failed strides (`why`, counted)."""
     from collections import Counter
 
-    from .._execute import summarize
-    from .._result import SIM_FAILURE_NAMES, failure_counts
+    from .._core.result import SIM_FAILURE_NAMES, failure_counts
+    from .._execution.batches import summarize
 
     out = summarize(result, seconds)
     out["failures"] = failure_counts(result["code"], SIM_FAILURE_NAMES)

@@ -28,10 +28,10 @@ from typing import NamedTuple
 import mujoco
 import numpy as np
 
-from .._params import Hopper
-from .._result import Result
-from .._slip import COLLAPSED
-from .._terrain import Terrain
+from .._core.params import Hopper
+from .._core.result import Result
+from .._core.terrain import Terrain
+from .._models.slip.stride import COLLAPSED
 from ._model import DEFAULT, IDEAL, Mechanics, hopper_xml
 
 DESCENT, COMPRESSION, DECOMPRESSION, ASCENT = range(4)

@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+import dataclasses
 import time
 
 import numpy as np
 
-from .._params import Hopper
-from .._result import COURSE_FAILURE_NAMES, Result, failure_counts, result_name
+from .._core.params import Hopper
+from .._core.result import COURSE_FAILURE_NAMES, Result, failure_counts, result_name
 from ..mppc._course import Course
 from ._map import leg_hopper, leg_templates
 from ._run import (
@@ -29,27 +30,50 @@ def _stats(ms) -> dict:
     return {"min": float(ms.min()), "median": float(np.median(ms)), "max": float(ms.max())}
 
 
-def reactive_parkour(course: Course, *, model: str = "bhop", noise: str = "none",
-                     seed: int = 0, runs: int = 1, hopper: Hopper | None = None,
-                     templates=None, rebuild: int = 0, plans=None, log=None,
-                     align: bool = True, controller: str = "paper") -> dict:
+@dataclasses.dataclass(frozen=True)
+class CourseRuns:
+    """The seeded runs of the reactive planner on a course.
+
+    Attributes:
+        model: `"bhop"` or `"slip"`, the simulated model.
+        controller: `"adaptive"` (the default, as on the command line) or `"paper"`.
+        noise: `none`, `wind`, `sensor` or `landing`, or several joined by `+`
+            (Froude-scaled to the leg; `docs/parkour_reactive.md`).
+        seed: the seed of the initial states and of the noise.
+        runs: how many seeded runs (run 0 is reported in full).
+    """
+
+    model: str = "bhop"
+    controller: str = "adaptive"
+    noise: str = "none"
+    seed: int = 0
+    runs: int = 1
+
+
+def reactive_parkour(course: Course, runs: CourseRuns | None = None, *,
+                     hopper: Hopper | None = None, templates=None, plans=None,
+                     rebuild: int = 0, align: bool = True, log=None) -> dict:
     """Run the reactive planner on a course; the result has the MPPC result's keys.
 
     `finished`, `jumps`, `flight_time`, `violations`, `executed` describe run 0 (the first
     seeded initial apex); `success_rate` and `failures` cover all `runs`. `replan_ms` is the
     time per decision (a reactive planner decides at every apex instead of replanning);
     `update_ms` the incremental plan updates at snapshots (`rebuild_ms`: full rebuilds of
-    the first `rebuild` snapshots). `align`: `course_map`'s option (`False`: every block's
-    segments centred). `controller`: `"paper"` or `"adaptive"` (`jaxhop.RunConfig`);
+    the first `rebuild` snapshots). `runs` (`CourseRuns`): model, controller, noise, seed
+    and number of runs. `hopper`, `templates` (default: the MPPC leg's, Froude-scaled) and
+    `plans` (`course_plans`, built here when not given, with `rebuild`, `align`:
+    `course_map`'s option, `False` centres every block's segments, and `log`).
     `recoveries` counts the strides taken from a recovered apex (total and mean per run).
     """
+    runs = CourseRuns() if runs is None else runs
+    model, noise, seed, controller = runs.model, runs.noise, runs.seed, runs.controller
     hopper = leg_hopper() if hopper is None else hopper
     templates = leg_templates(hopper, model=model) if templates is None else templates
     cps = plans if plans is not None else course_plans(course, hopper, templates,
                                                        rebuild=rebuild, log=log,
                                                        align=align)
     padded = pad_plans(cps, model)
-    apex0, coverage = initial_states(cps, padded, runs, seed, hopper)
+    apex0, coverage = initial_states(cps, padded, runs.runs, seed, hopper)
     if apex0.shape[0] == 0:
         raise RuntimeError(f"{course.name}: the plan covers no initial state near the start")
     t0 = time.perf_counter()

@@ -1,6 +1,6 @@
 """Reactive plans on a course map, built in full or updated incrementally.
 
-`build_course_plan` runs the stages of `jaxhop.build_plan` (`jaxhop._stages`: situate,
+`build_course_plan` runs the stages of `jaxhop.build_plan` (`jaxhop._planning.stages`: situate,
 candidate pairs, screen, instantiate, goal policies, prepares, safety sampling, deploy)
 with one change:
 policies are situated only on the map's allowed blocks (restricted floor and margin
@@ -28,7 +28,7 @@ segment (their ids are remapped); those on changed blocks are *new*. Then:
   below the block's top, until it reaches the lowest block); a robustness score likewise
   for the whole probe box;
 * goal policies are reused iff every candidate is an old policy and no changed block can
-  bind the ascent bounds at the goal's probes (`_goal_binds`); deployment is redone.
+  bind the ascent bounds at the goal's probes (`goal_binds`); deployment is redone.
 
 docs/parkour_reactive.md derives each test. A change of the map's ends, of its lowest
 height (which the hole test uses) or of the goal, or SLIP-adjusted templates, fall back to
@@ -44,27 +44,20 @@ import dataclasses
 import numpy as np
 import scipy.sparse as sp
 
-from .. import _stages as S
-from .._batching import bucket, chunked_map, pad_terrain, pad_to
-from .._deploy import by_robustness, deploy
-from .._graph import count_edges
-from .._params import Hopper
-from .._plan import Plan
-from .._policies import PairGrid, SituatedTable, candidate_pairs
-from .._stages import PAIR_CHUNK as _PAIR_CHUNK  # noqa: F401
-from .._stages import ROW_CHUNK as _ROW_CHUNK  # noqa: F401
-from .._stages import pairs_jit as _pairs_jit  # noqa: F401
-from .._stages import rows_jit as _rows_jit  # noqa: F401
-from .._templates import Templates, template_scales
+from .._core.batching import bucket, chunked_map, pad_terrain, pad_to
+from .._core.params import Hopper
+from .._planning import stages as S
+from .._planning.deploy import by_robustness, deploy
+from .._planning.graph import count_edges
+from .._planning.plan import Plan
+from .._planning.policies import PairGrid, SituatedTable, candidate_pairs
+from .._planning.templates import Templates, template_scales
 from ._map import CourseMap
-from ._reach import (  # noqa: F401 (`_changed`, `_landing_changes`, `_situated_map`: checks)
+from ._reach import (
     Reach,
-    _changed,
-    _goal_binds,
-    _landing_changes,
-    _segments,
-    _situated_map,
-    _Update,
+    Update,
+    goal_binds,
+    rounded_segments,
 )
 
 _GRID = PairGrid()
@@ -117,7 +110,8 @@ class _Context(S.Layout, Reach):
 
     def __init__(self, cmap: CourseMap, templates: Templates, hopper: Hopper):
         terrain = cmap.plan
-        super().__init__(terrain, _segments(terrain, templates.seg_length), templates, hopper)
+        segs = rounded_segments(terrain, templates.seg_length)
+        super().__init__(terrain, segs, templates, hopper)
         self.cmap = cmap
         self.sit_allowed = np.asarray(cmap.allowed)[np.asarray(self.segs.block)][self.s_of]
         scale = template_scales(hopper)
@@ -173,13 +167,20 @@ class _Context(S.Layout, Reach):
 
 
 
+def build_shape(cmap: CourseMap, templates: Templates, hopper: Hopper) -> tuple[int, int]:
+    """`(padded blocks, situated policies)` of a full build on `cmap`: two maps of the same
+    shape share the build's compiled programs."""
+    ctx = _Context(cmap, templates, hopper)
+    return ctx.jterrain.n_blocks, int(ctx.jtable.centre.shape[0])
+
+
 def _overlaps(gf, d):
     if gf.shape[0] == 0 or d.shape[0] == 0:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
     return candidate_pairs(gf, d)
 
 
-def _pairs_to_compute(ctx: _Context, up: _Update | None):
+def _pairs_to_compute(ctx: _Context, up: Update | None):
     """Candidate pairs to compute, and the screened pairs an update keeps.
 
     Returns:
@@ -238,7 +239,7 @@ class _Screened:
     counts: dict
 
 
-def _screened_pairs(ctx: _Context, up: _Update | None, grid, laps) -> _Screened:
+def _screened_pairs(ctx: _Context, up: Update | None, grid, laps) -> _Screened:
     """Candidate pairs, screen and instantiate what changed; merge with the kept pairs."""
     rows, cols, known, reuse_keys, reuse_pos = _pairs_to_compute(ctx, up)
     keys = rows.astype(np.int64) * ctx.n_sit + cols
@@ -276,10 +277,10 @@ def _screened_pairs(ctx: _Context, up: _Update | None, grid, laps) -> _Screened:
     return _Screened(*(a[srt] for a in parts), counts)
 
 
-def _goal_policies(ctx: _Context, up: _Update | None, goal):
+def _goal_policies(ctx: _Context, up: Update | None, goal):
     """Goal policies: the allowed situated policies whose `Gf` box holds the goal (few),
     exactly tested; an update keeps an old policy's result if no changed block can bind
-    the ascent bounds at a probe of `goal_policy_margin` (`_goal_binds`).
+    the ascent bounds at a probe of `goal_policy_margin` (`goal_binds`).
 
     Returns:
         `(situated, margin, reused)`: the goal policies, their margins, and whether every
@@ -291,7 +292,7 @@ def _goal_policies(ctx: _Context, up: _Update | None, goal):
     g_ok, g_margin = np.zeros(near.size, bool), np.zeros(near.size)
     redo = np.ones(near.size, bool)
     if up is not None and near.size:
-        redo = (up.new_to_old[near] < 0) | _goal_binds(ctx, near, goal, 0.5, up.changed)
+        redo = (up.new_to_old[near] < 0) | goal_binds(ctx, near, goal, 0.5, up.changed)
         old = up.previous.plan
         old_goal = dict(zip(old.situated[old.is_goal].tolist(),
                             old.margin[old.is_goal].tolist()))
@@ -304,7 +305,7 @@ def _goal_policies(ctx: _Context, up: _Update | None, goal):
     return near[g_ok], g_margin[g_ok], up is not None and not redo.any()
 
 
-def _prepares(ctx: _Context, up: _Update | None, goals, from_old):
+def _prepares(ctx: _Context, up: Update | None, goals, from_old):
     """`P` (CSR): an update remaps the old row of a policy with an unchanged goal whose
     descent meets no changed block (`touched`). Returns `P` and how many rows were computed."""
     n_inst = goals.shape[0]
@@ -333,7 +334,7 @@ def _prepares(ctx: _Context, up: _Update | None, goals, from_old):
     return p, todo.size
 
 
-def _probes_held(ctx: _Context, up: _Update | None, goals, is_goal, from_old):
+def _probes_held(ctx: _Context, up: Update | None, goals, is_goal, from_old):
     """Safety sampling: whether an allowed domain holds each of the 27 probes around each
     goal (goal policies: all). A probe of a policy with an unchanged goal keeps its old
     result if its descent meets no change (`touched`).
@@ -361,7 +362,7 @@ def _probes_held(ctx: _Context, up: _Update | None, goals, is_goal, from_old):
     return held, int(redo.any(axis=1).sum()), int(pol.size)
 
 
-def _update_stats(ctx: _Context, up: _Update | None, counts: dict, n_rows: int, n_pol: int,
+def _update_stats(ctx: _Context, up: Update | None, counts: dict, n_rows: int, n_pol: int,
                   n_probes: int, reused_goal: bool) -> dict:
     """The course keys of `CoursePlan.stats`: what was recomputed, what changed."""
     return {
@@ -397,7 +398,7 @@ def build_course_plan(cmap: CourseMap, templates: Templates, hopper: Hopper, *,
     laps = S.Laps(digits=4, cpu=True)
     ctx = _Context(cmap, templates, hopper)
     goal = np.asarray(cmap.goal, float)
-    up = _Update.of(previous, ctx, goal)
+    up = Update.of(previous, ctx, goal)
     ctx.chunking = "fit" if up is None else "tail"
     pairs = _screened_pairs(ctx, up, grid, laps)
     goal_sit, goal_margin, reused_goal = _goal_policies(ctx, up, goal)

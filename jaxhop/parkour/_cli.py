@@ -10,9 +10,9 @@ from __future__ import annotations
 
 import sys
 
-from .. import _validate as v
-from .._errors import InputError
-from .._params import check_noise
+from .._core import validate as v
+from .._core.errors import InputError
+from .._core.params import check_noise
 from ..mppc._cli import check_grid, run_mppc, write_json
 from ..mppc._course import list_courses, load_course
 from ..mppc._plan import Settings
@@ -105,11 +105,12 @@ def run_parkour(args, course) -> int:
     if runs < 1 or runs > MAX_RUNS:
         raise InputError(f"--runs: must be in [1, {MAX_RUNS}], got {runs}")
     if getattr(args, "planner", "mppc") == "reactive":
-        from ._api import reactive_parkour
+        from ._api import CourseRuns, reactive_parkour
 
-        out = reactive_parkour(course, model=getattr(args, "model", "bhop"), noise=noise,
-                               seed=seed, runs=runs,
-                               controller=getattr(args, "controller", "adaptive"),
+        settings = CourseRuns(model=getattr(args, "model", "bhop"),
+                              controller=getattr(args, "controller", "adaptive"), noise=noise,
+                              seed=seed, runs=runs)
+        out = reactive_parkour(course, settings,
                                align=getattr(args, "segments", "lattice") == "lattice",
                                log=lambda m: print(m, file=sys.stderr))
     else:

@@ -34,10 +34,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._params import Hopper
-from .._result import COURSE_FAILURE_NAMES, Result
-from .._templates import REFERENCE_HOPPER
-from .._terrain import SEGMENT_LENGTH, Terrain, make_terrain
+from .._core.params import Hopper
+from .._core.result import COURSE_FAILURE_NAMES, Result
+from .._core.terrain import SEGMENT_LENGTH, Terrain, make_terrain
+from .._planning.templates import REFERENCE_HOPPER
 from ..mppc._course import Course, Environment
 from ..mppc._robot import Robot
 
@@ -210,8 +210,8 @@ def leg_templates(hopper: Hopper | None = None, extra_energy=LEG_EXTRA_ENERGY,
     and ends moving backward never moves forward, so those routes ask for strides no SLIP
     does (docs/parkour_reactive.md, "SLIP on the leg").
     """
-    from .._models import model_for
-    from .._templates import make_templates, paper_templates, scaled_templates
+    from .._control.decisions import model_for
+    from .._planning.templates import make_templates, paper_templates, scaled_templates
 
     hopper = leg_hopper() if hopper is None else hopper
     paper = paper_templates()

@@ -3,7 +3,7 @@
 `jaxhop.mppc.run_course` executes every planned first jump exactly. Here the same
 receding-horizon replans (`jaxhop.mppc.Replanner`: same planner, same replans on the
 snapshot in force) execute each jump under a disturbance, the reactive planner's
-(`jaxhop._params.disturbance_for`), Froude-scaled to the leg (length `rt`, its gravity):
+(`jaxhop._core.params.disturbance_for`), Froude-scaled to the leg (length `rt`, its gravity):
 
 * `sensor`: the planner sees the robot's contact point `+-0.05 rt` off (uniform, fresh per
   replan) and plans from there; the jump (speed, angle) is executed from the true point,
@@ -34,8 +34,8 @@ import math
 
 import numpy as np
 
-from .._flight import COLLISION, RESULT_NAMES
-from .._params import Hopper, check_noise, disturbance_for
+from .._core.params import Hopper, check_noise, disturbance_for
+from .._models.flight import COLLISION, RESULT_NAMES
 from ..mppc import (
     MPPC,
     Course,

@@ -1,10 +1,10 @@
 """What a change of a course map can reach: the dependency tests of an incremental update.
 
 An update keeps every result that no changed block can affect (docs/parkour_reactive.md
-derives each test). `_changed` lists the changed blocks, `_situated_map` which situated
-policies keep their segment, `_landing_changes` where a touchdown can be looked up
+derives each test). `changed_blocks` lists the changed blocks, `situated_map` which situated
+policies keep their segment, `landing_changes` where a touchdown can be looked up
 differently; `Reach` tests pairs (`pair_binds`), rows and columns (`affected`) and descents
-(`touched`) against them, `_goal_binds` the goal policies; `_Update` gathers them for
+(`touched`) against them, `goal_binds` the goal policies; `Update` gathers them for
 one update.
 """
 
@@ -15,14 +15,14 @@ import dataclasses
 import jax.numpy as jnp
 import numpy as np
 
-from .._terrain import Terrain, segments
+from .._core.terrain import Terrain, segments
 from ._map import CourseMap
 
 _PAD = 1e-6
 _TOL = 1e-9
 
 
-def _segments(terrain: Terrain, seg_length: float):
+def rounded_segments(terrain: Terrain, seg_length: float):
     """`segments` with centres rounded to 1e-12 m.
 
     `course_map` puts segments on an absolute grid, but `segments` computes a centre from
@@ -138,7 +138,7 @@ class Reach:
 
 
 
-def _goal_binds(ctx, near: np.ndarray, goal: np.ndarray, reach: float,
+def goal_binds(ctx, near: np.ndarray, goal: np.ndarray, reach: float,
                 blocks: np.ndarray) -> np.ndarray:
     """Whether a block can bind `ascent_y_bounds` at the goal or a probe of it.
 
@@ -160,7 +160,7 @@ def _goal_binds(ctx, near: np.ndarray, goal: np.ndarray, reach: float,
     return out
 
 
-def _changed(old: CourseMap, new: CourseMap):
+def changed_blocks(old: CourseMap, new: CourseMap):
     """Blocks not in both maps.
 
     Returns `(k, 3)` rows `(start, end, plan height)` of every block that is in one map
@@ -176,7 +176,7 @@ def _changed(old: CourseMap, new: CourseMap):
     return np.array(rows, float).reshape(-1, 3)
 
 
-def _landing_changes(old: CourseMap, old_segs, ctx, blocks: np.ndarray):
+def landing_changes(old: CourseMap, old_segs, ctx, blocks: np.ndarray):
     """The parts of the changed `blocks` where a touchdown can be looked up differently.
 
     `candidate_situated` depends on the map only through the touchdown (the first block
@@ -185,7 +185,7 @@ def _landing_changes(old: CourseMap, old_segs, ctx, blocks: np.ndarray):
     same grid segment covering each point; `course_map` keeps floor segments on the
     lattice grid), neither changes. So the result can differ only within one segment of a point
     where the plan height, the kind or the covering segment differs between the maps.
-    `old`, `old_segs`: the old map and its `_segments`; `ctx`: the new map's context.
+    `old`, `old_segs`: the old map and its `rounded_segments`; `ctx`: the new map's context.
 
     Returns:
         `(k, 3)` rows `(start, end, height)` for `touched`: every such interval, widened by
@@ -222,14 +222,14 @@ def _landing_changes(old: CourseMap, old_segs, ctx, blocks: np.ndarray):
     return np.array(rows, float).reshape(-1, 3)
 
 
-def _situated_map(old: CourseMap, old_segs, ctx) -> np.ndarray:
+def situated_map(old: CourseMap, old_segs, ctx) -> np.ndarray:
     """Old situated id -> new situated id (-1 where its segment is gone).
 
     A segment is kept when the new map has a segment with the same centre, height and
     block kind, even if its block was re-cut (`course_map` puts floor segments on the
     lattice grid, so a block that changes at its free end keeps them). Whatever a re-cut block
     changes is covered by the dependency tests, which see both versions of every changed
-    block. `old_segs`: the old map's `_segments`.
+    block. `old_segs`: the old map's `rounded_segments`.
     """
     old_kind = np.asarray(old.kind)[np.asarray(old_segs.block)]
     new_kind = np.asarray(ctx.cmap.kind)[np.asarray(ctx.segs.block)]
@@ -248,7 +248,7 @@ def _situated_map(old: CourseMap, old_segs, ctx) -> np.ndarray:
 
 
 @dataclasses.dataclass
-class _Update:
+class Update:
     """What an update reuses from `previous` and what changed (`_reach`)."""
 
     previous: object  # the `CoursePlan` updated
@@ -258,7 +258,7 @@ class _Update:
     new_to_old: np.ndarray
 
     @classmethod
-    def of(cls, previous, ctx, goal) -> _Update | None:
+    def of(cls, previous, ctx, goal) -> Update | None:
         """The update from `previous`, or None for a full build (no previous plan, or
         other ends, lowest height, goal or template count, or SLIP-adjusted templates)."""
         if previous is None:
@@ -272,10 +272,10 @@ class _Update:
         if not (same_ends and same_min and same_goal and ctx.templates.slip is None
                 and previous.plan.templates.n == ctx.templates.n):
             return None
-        changed = _changed(previous.cmap, ctx.cmap)
-        old_segs = _segments(old_terrain, previous.plan.templates.seg_length)
-        landing = _landing_changes(previous.cmap, old_segs, ctx, changed)
-        old_sit_to_new = _situated_map(previous.cmap, old_segs, ctx)
+        changed = changed_blocks(previous.cmap, ctx.cmap)
+        old_segs = rounded_segments(old_terrain, previous.plan.templates.seg_length)
+        landing = landing_changes(previous.cmap, old_segs, ctx, changed)
+        old_sit_to_new = situated_map(previous.cmap, old_segs, ctx)
         if not (ctx.contiguous and np.all(old_starts[1:] == old_ends[:-1])):
             ctx.floor = ctx.h_min - ctx.hopper.rho0  # gaps: the foot may fall to the hole depth
         new_to_old = np.full(ctx.n_sit, -1, np.int64)

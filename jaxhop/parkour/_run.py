@@ -9,7 +9,7 @@ through the paper's reactive controller (Fig. 8: first match, deadbeat, clip; th
 
 A stride fails with `restricted` (`margin`) when its touchdown lies strictly inside a
 restricted area (a margin band). Disturbances (section VI-C's, Froude-scaled by the hopper's
-size: `jaxhop._params.disturbance_for`): `wind` (horizontal acceleration `-0.2 g / 9.81` in
+size: `jaxhop._core.params.disturbance_for`): `wind` (horizontal acceleration `-0.2 g / 9.81` in
 flight), `sensor` (uniform apex measurement noise `+-0.05` leg lengths on `y`, `z` and
 `+-0.05 sqrt(g rho0 / 9.81)` on `ydot`), `landing` (the true apex is shifted by uniform
 `+-0.05` leg lengths in `y` before each descent, i.e. each touchdown lands that much off).
@@ -28,14 +28,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._batching import bucket, pad_terrain, pad_to
-from .._models import decide, in_global_domain, model_for
-from .._params import NOISE_KINDS, Hopper, check_noise, disturbance_for
-from .._plan import PlanTables
-from .._policies import PairGrid
-from .._result import Result
-from .._runloop import Control, RunConfig, World, control_init, final_code, step
-from .._templates import template_scales
+from .._control.decisions import decide, in_global_domain, model_for
+from .._control.runloop import Control, RunConfig, World, control_init, final_code, step
+from .._core.batching import bucket, pad_terrain, pad_to
+from .._core.params import NOISE_KINDS, Hopper, check_noise, disturbance_for
+from .._core.result import Result
+from .._planning.plan import PlanTables
+from .._planning.policies import PairGrid
+from .._planning.templates import template_scales
 from ..mppc._course import Course
 from ._build import CoursePlan, build_course_plan
 from ._map import CourseMap, course_map
@@ -224,7 +224,7 @@ class Padded:
 
 def pad_plans(cps: CoursePlans, model: str = "bhop") -> Padded:
     """Every plan's controller tables padded to one shape (one compiled run loop); for
-    `model="slip"` with the SLIP deadbeat's start table (`jaxhop._slip_table`)."""
+    `model="slip"` with the SLIP deadbeat's start table (`jaxhop._models.slip.table`)."""
     slip = not model_for(model).instant_stance
     nb = bucket(max(m.true.n_blocks for m in cps.maps) + 1, 64)
     ns = bucket(max(cp.plan.stats["n_segments"] for cp in cps.plans), 256)
@@ -265,17 +265,17 @@ def initial_states(cps: CoursePlans, padded: Padded, n: int, seed: int,
 
 
 def run_reactive(cps: CoursePlans, padded: Padded, apex0, *, hopper: Hopper, noise="none",
-                 seed: int = 0, model: str = "bhop", max_steps: int = MAX_STRIDES,
-                 controller: str = "paper") -> dict:
+                 seed: int = 0, model: str = "bhop", controller: str = "adaptive") -> dict:
     """Run a batch of initial apexes over the course (snapshots in force by stride).
 
     Stride `k` of every run is one jitted `step` (vmapped) against the plan and true map of
     the environment in force (`CoursePlans.index_at(k)`); run `i` draws its noise from
-    `fold_in(key(seed), i)`. `controller`: `"paper"` or `"adaptive"` (`RunConfig`).
+    `fold_in(key(seed), i)`; each run takes at most `MAX_STRIDES` strides. `controller`:
+    `"adaptive"` (the default) or `"paper"` (`RunConfig`).
 
     Returns:
-        dict of NumPy arrays: `code (n,)`, `steps (n,)`, `apexes (n, max_steps + 1, 3)`,
-        `footholds (n, max_steps, 2)`, `policies (n, max_steps)`, `recoveries (n,)`.
+        dict of NumPy arrays: `code (n,)`, `steps (n,)`, `apexes (n, MAX_STRIDES + 1, 3)`,
+        `footholds (n, MAX_STRIDES, 2)`, `policies (n, MAX_STRIDES)`, `recoveries (n,)`.
     """
     apex0 = np.atleast_2d(np.asarray(apex0, float))
     n = apex0.shape[0]
@@ -286,13 +286,13 @@ def run_reactive(cps: CoursePlans, padded: Padded, apex0, *, hopper: Hopper, noi
     goal = jnp.asarray(cps.maps[0].goal)
     tol = jnp.asarray(goal_tolerance(hopper))
     dist = course_disturbance(noise, hopper)
-    apexes = np.full((nb, max_steps + 1, 3), np.nan)
+    apexes = np.full((nb, MAX_STRIDES + 1, 3), np.nan)
     apexes[:, 0] = np.asarray(apex)
-    feet = np.full((nb, max_steps, 2), np.nan)
-    used = np.full((nb, max_steps), -1, np.int64)
+    feet = np.full((nb, MAX_STRIDES, 2), np.nan)
+    used = np.full((nb, MAX_STRIDES), -1, np.int64)
     steps = np.zeros(nb, np.int64)
     control = jax.vmap(lambda _: control_init())(jnp.arange(nb))
-    for k in range(max_steps):
+    for k in range(MAX_STRIDES):
         e = cps.index_at(k)
         apex, code, foot, a, stepping, control = _step_batch(
             apex, code, keys, k, padded.tables[e], padded.terrains[e], padded.forbidden[e],
@@ -304,7 +304,7 @@ def run_reactive(cps: CoursePlans, padded: Padded, apex0, *, hopper: Hopper, noi
         apexes[stepping, k + 1] = np.asarray(apex)[stepping]
         if not np.any(np.asarray(code) == Result.RUNNING):
             break
-    config = _course_config(goal, tol, model, max_steps)
+    config = _course_config(goal, tol, model, MAX_STRIDES)
     code = np.asarray(jax.vmap(final_code, (0, 0, None))(code, apex, config))
     return {"code": code[:n], "steps": steps[:n], "apexes": apexes[:n], "footholds": feet[:n],
             "policies": used[:n], "recoveries": np.asarray(control.recoveries)[:n]}

@@ -12,6 +12,8 @@ Inputs are plain data: `Terrain.from_blocks(blocks, goal)`, `Templates(rows, seg
 (rows as in `jaxhop.Templates.as_array()`), `Hopper(m, g, rho0)`.
 """
 
+from ._deadbeat import DeadbeatSearch as DeadbeatSearch
+from ._deadbeat import deadbeat_slip as deadbeat_slip
 from ._execute import Controller as Controller
 from ._execute import in_global_domain as in_global_domain
 from ._execute import run_batch as run_batch
@@ -47,6 +49,5 @@ from ._policies import situate_goal as situate_goal
 from ._policies import world_boxes as world_boxes
 from ._regions import TemplateRegions as TemplateRegions
 from ._regions import template_boxes as template_boxes
-from ._slip import deadbeat_slip as deadbeat_slip
 from ._slip import slip_apex_map as slip_apex_map
 from ._slip import slip_stride as slip_stride

@@ -1,6 +1,6 @@
 """Reactive execution (Fig. 8) and domain-of-attraction sweeps, one run at a time.
 
-`model="slip"` runs the SLIP model (`_slip`) with the controller of `jaxhop._execute`'s
+`model="slip"` runs the SLIP model (`_slip`) with the controller of `jaxhop._execution.batches`'s
 `decide_slip`: the SLIP deadbeat (eqs 12-16) on the `SLIP_CANDIDATES` highest-priority
 matching policies, the first whose predicted stride lands within `SLIP_ACCEPT` of its goal
 (else the smallest scaled miss), and SLIP strides on the terrain.
@@ -12,6 +12,7 @@ import time
 
 import numpy as np
 
+from ._deadbeat import DeadbeatSearch, deadbeat_slip
 from ._model import (
     FAILURE_NAMES,
     MAX_STEPS,
@@ -27,14 +28,14 @@ from ._model import (
     touchdown_one,
 )
 from ._plan import Plan
-from ._slip import deadbeat_slip, slip_stride
+from ._slip import slip_stride
 
 _BIG = np.iinfo(np.int32).max
-# Mirrors of jaxhop._execute's SLIP decision constants.
+# Mirrors of jaxhop._execution.batches's SLIP decision constants.
 SLIP_CANDIDATES = 2
 SLIP_ACCEPT = np.array([0.05, 0.05, 0.05])
-SLIP_STAGE_C2 = 1e-4  # jaxhop._models.SLIP_STAGE_C2
-DECISION_TOL = 1e-5  # rtol = atol of a decision's strides (jaxhop._slip_deadbeat)
+SLIP_STAGE_C2 = 1e-4  # jaxhop._control.decisions.SLIP_STAGE_C2
+DECISION_TOL = 1e-5  # rtol = atol of a decision's strides (jaxhop._models.slip.kernels)
 
 
 def slip_scales(hopper):
@@ -54,7 +55,7 @@ class Controller:
     """
 
     def __init__(self, plan: Plan, slip_table=None):
-        """`slip_table`: `(values, grid)` of the SLIP table (`jaxhop._slip_table`): SLIP
+        """`slip_table`: `(values, grid)` of the SLIP table (`jaxhop._models.slip.table`): SLIP
         decisions then take the table-start deadbeat, as the JAX controller with one."""
         self.plan = plan
         self.slip_table = slip_table
@@ -109,7 +110,7 @@ class Controller:
         return found, self.controls(apex, s, a, model), a
 
     def decide_slip(self, apex, n_candidates=SLIP_CANDIDATES):
-        """SLIP controls for one measured apex (mirrors `jaxhop._models.decide_slip`).
+        """SLIP controls for one measured apex (mirrors `jaxhop._control.decisions.decide_slip`).
 
         The SLIP deadbeat for each of the `n_candidates` highest-priority matching policies,
         its stride predicted over the policy's foothold; the first in deployment order whose
@@ -146,8 +147,8 @@ class Controller:
 
         def one(c, **kw):
             goal = self.plan.goals[insts[c]]
-            u, _ = deadbeat_slip(apex, goal, hs[c], sit.hopper, terrain=sit.terrain,
-                                 tol=DECISION_TOL, **kw)
+            search = DeadbeatSearch(tol=DECISION_TOL, **kw)
+            u, _ = deadbeat_slip(apex, goal, hs[c], sit.hopper, search, sit.terrain)
             pred, code, _ = slip_stride(apex, u, sit.terrain, sit.hopper, 0.0, DECISION_TOL,
                                        DECISION_TOL)
             ok = code == OK and np.all(np.isfinite(pred))
@@ -157,7 +158,7 @@ class Controller:
         if self.slip_table is None:
             us, misses, preds = map(list, zip(*(one(c) for c in range(len(order)))))
         else:
-            # `jaxhop._models._first_accepted`: the candidates in order from the table's
+            # `jaxhop._control.decisions._first_accepted`: the candidates in order from the table's
             # starts until one is accepted.
             n = len(order)
             us, misses, preds = [np.zeros(3)] * n, [np.inf] * n, [None] * n
@@ -193,9 +194,8 @@ class Controller:
 
 
 def run_one(ctrl: Controller, apex0, *, true_terrain: Terrain | None = None, wind=0.0,
-            noise=None, goal=None, tolerance=(0.05, 0.05, 0.05), max_steps=60,
-            model="bhop"):
-    """One run of the reactive controller (mirrors `jaxhop._execute.run_one`).
+            noise=None, tolerance=(0.05, 0.05, 0.05), max_steps=60, model="bhop"):
+    """One run of the reactive controller (mirrors `jaxhop._execution.batches.run_one`).
 
     Arguments:
         noise: `(max_steps, 3)` additive measurement noise per apex (already scaled), or None.
@@ -206,7 +206,7 @@ def run_one(ctrl: Controller, apex0, *, true_terrain: Terrain | None = None, win
     """
     plan = ctrl.plan
     terrain = plan.terrain if true_terrain is None else true_terrain
-    goal = plan.goal if goal is None else np.asarray(goal, float)
+    goal = plan.goal
     tol = np.asarray(tolerance, float)
     apex = np.asarray(apex0, float)
     apexes = [apex]

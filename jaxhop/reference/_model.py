@@ -1,6 +1,6 @@
 """Plain NumPy data and models: hopper, terrain, templates, segments, BHop map, flight.
 
-Everything here mirrors `jaxhop._params`, `_terrain`, `_templates`, `_bhop` and `_flight`
+Everything here mirrors `jaxhop._core.params`, `_terrain`, `_templates`, `_bhop` and `_flight`
 operation for operation (same formulas, same order of floating-point operations), so the
 twin agrees with the JAX path to the last bits wherever the math libraries do. Functions
 that act on apex states take a batch `(n, 3)`; the blocks of the terrain are the last axis.
@@ -300,7 +300,7 @@ def touchdown(apexes, terrain: Terrain, hopper: Hopper, wind=0.0):
 # --- the same, for one apex: plain floats, a loop over the (few) blocks ------------------------
 
 
-def _crossings1(p0, v, a, w):
+def crossings_one(p0, v, a, w):
     c = p0 - w
     if abs(a) < 1e-12:
         t_lin = -c / v if v != 0 else INF
@@ -320,11 +320,11 @@ def _time_at_height1(z0, g, height):
     return (0.0 + (math.sqrt(disc) if disc > 0 else 0.0)) / g if disc >= 0 else INF
 
 
-def _pos1(p0, v, a, t):
+def position_one(p0, v, a, t):
     return p0 + v * t + 0.5 * a * t**2
 
 
-def _fin(t):
+def finite_one(t):
     return t if t != INF else 0.0
 
 
@@ -332,7 +332,7 @@ def touchdown_one(apex, terrain: Terrain, hopper: Hopper, wind=0.0, offset=None)
     """`touchdown` for one apex, as scalar code over the blocks (same operations).
 
     The foot rides at `COM + offset` (default `(0, -rho0)`, BHop's foot below the COM; the
-    SLIP twin passes its touchdown-angle offset), as in `jaxhop._flight.touchdown`.
+    SLIP twin passes its touchdown-angle offset), as in `jaxhop._models.flight.touchdown`.
     """
     y, z, ydot = (float(a) for a in apex)
     g = hopper.g
@@ -344,27 +344,27 @@ def touchdown_one(apex, terrain: Terrain, hopper: Hopper, wind=0.0, offset=None)
     inside = False
     for b, (s, e, h) in enumerate(blocks):
         t = _time_at_height1(fz, g, h)
-        if t != INF and s <= _pos1(fy, ydot, wind, t) <= e and t < t_td:
+        if t != INF and s <= position_one(fy, ydot, wind, t) <= e and t < t_td:
             t_td, block = t, b
         for px, pz in ((fy, fz), (y, z)):  # side walls, for the foot and the COM
             inside = inside or (s < px < e and pz < h)
             for w in (s, e):
-                for tc in _crossings1(px, ydot, wind, w):
-                    if pz + 0.0 * _fin(tc) + 0.5 * -g * _fin(tc) ** 2 < h:
+                for tc in crossings_one(px, ydot, wind, w):
+                    if pz + 0.0 * finite_one(tc) + 0.5 * -g * finite_one(tc) ** 2 < h:
                         t_wall = min(t_wall, tc)
         t = _time_at_height1(z, g, h)
-        if s < _pos1(y, ydot, wind, _fin(t)) < e:
+        if s < position_one(y, ydot, wind, finite_one(t)) < e:
             t_com = min(t_com, t)
     t_collide = 0.0 if inside else min(t_wall, t_com)
     y_min, y_max = blocks[0][0], blocks[-1][1]
-    t_off = min(*_crossings1(fy, ydot, wind, y_min), *_crossings1(fy, ydot, wind, y_max))
+    t_off = min(*crossings_one(fy, ydot, wind, y_min), *crossings_one(fy, ydot, wind, y_max))
     t_off = 0.0 if (fy < y_min or fy > y_max) else t_off
     t_hole = _time_at_height1(fz, g, min(h for _, _, h in blocks) - hopper.rho0)
     times = (t_td, t_collide, t_hole, t_off)
     first = min(range(4), key=lambda i: times[i])  # ties: the earlier entry
-    t_safe = _fin(times[first])
+    t_safe = finite_one(times[first])
     v_td = (ydot + wind * t_safe, -g * t_safe)
-    return (OK, COLLISION, HOLE, OFF_MAP)[first], block, t_safe, _pos1(fy, ydot, wind,
+    return (OK, COLLISION, HOLE, OFF_MAP)[first], block, t_safe, position_one(fy, ydot, wind,
                                                                          t_safe), v_td
 
 
@@ -379,8 +379,8 @@ def liftoff_clear(y_td, y_lo, v_lo, h, terrain: Terrain, hopper: Hopper, wind=0.
         if hb > z_lo and s < hi and e > lo:  # swept into in stance
             return False
         for w in (s, e):
-            for t in _crossings1(y_lo, v_lo[0], wind, w):
-                if t <= t_up and _pos1(z_lo, v_lo[1], -hopper.g, _fin(t)) < hb:
+            for t in crossings_one(y_lo, v_lo[0], wind, w):
+                if t <= t_up and position_one(z_lo, v_lo[1], -hopper.g, finite_one(t)) < hb:
                     return False
     return True
 

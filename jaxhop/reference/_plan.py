@@ -77,7 +77,7 @@ def instantiate(sit: Situation, rows, cols, gf_world, d_world, n_v=16, n_z=16):
     for p in range(n):
         i, j = int(rows[p]), int(cols[p])
         f, g, m, md = pair_goal(sit, i % nt, i // nt, j % nt, j // nt,
-                                pair_box(gf_world, d_world, i, j), n_v, n_z)
+                                pair_box(gf_world, d_world, i, j), (n_v, n_z))
         if f:
             found[p], goals[p], margin[p], margin_d[p] = True, g, m, md
     return found, goals, margin, margin_d

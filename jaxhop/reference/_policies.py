@@ -2,7 +2,7 @@
 goal policies and safety sampling (section III-C, eqs 8, 30-31, 34).
 
 The collision-free clauses (descent to the segment, rise to the goal) are bounds on `y` at
-fixed `(ydot, z)`, as in `jaxhop._policies`; only blocks that can bind are evaluated.
+fixed `(ydot, z)`, as in `jaxhop._planning.policies`; only blocks that can bind are evaluated.
 """
 
 from __future__ import annotations
@@ -26,8 +26,8 @@ from ._regions import TemplateRegions
 
 
 class Situation:
-    """A terrain cut into segments, with the lookup arrays of `jaxhop._policies.SituatedTable`
-    and the per-template regions."""
+    """A terrain cut into segments, with the lookup arrays of the JAX `SituatedTable` and
+    the per-template regions."""
 
     def __init__(self, terrain: Terrain, segs: Segments, templates: Templates, hopper: Hopper):
         self.terrain, self.segs, self.templates, self.hopper = terrain, segs, templates, hopper
@@ -172,7 +172,7 @@ def _line_margin(line, i, spacing):
     return (min(i - prev_out, next_out - i) - 0.5) * spacing
 
 
-def pair_goal(sit: Situation, ti, seg_i, tj, seg_j, box, n_v=16, n_z=16, margins=False):
+def pair_goal(sit: Situation, ti, seg_i, tj, seg_j, box, grid=(16, 16), margins=False):
     """Best goal in `Gf(i) ∩ D(j)` for one candidate pair (mirrors `_policies.pair_goal`).
 
     Arguments:
@@ -183,6 +183,7 @@ def pair_goal(sit: Situation, ti, seg_i, tj, seg_j, box, n_v=16, n_z=16, margins
     Returns:
         `(found, goal, margin, margin_d)`.
     """
+    n_v, n_z = grid
     hp = sit.hopper
     reg_i, reg_j = sit.regions[ti], sit.regions[tj]
     py_i, h_i = sit.segs.centre[seg_i]

@@ -1,5 +1,4 @@
-"""SLIP stance, stride and position-aware deadbeat with SciPy (twin of `jaxhop._slip` and
-`jaxhop._slip_deadbeat`).
+"""SLIP stance, stride and position-aware deadbeat with SciPy (twin of `jaxhop.slip`).
 
 - Stance (eq 10) in polar coordinates about the foot, COM at `foot + rho (-sin th, cos th)`,
   integrated by `scipy.integrate.solve_ivp` (DOP853) with terminal events: the bottom
@@ -38,13 +37,13 @@ from ._model import (
     SOLVER,
     Hopper,
     Terrain,
-    _crossings1,
-    _fin,
-    _pos1,
+    crossings_one,
+    finite_one,
+    position_one,
     touchdown_one,
 )
 
-# Mirrors of jaxhop._slip / jaxhop._slip_deadbeat constants.
+# Mirrors of jaxhop._models.slip.stride / jaxhop._models.slip.kernels constants.
 RTOL = 1e-10
 ATOL = 1e-10
 SEARCH_TOL = 1e-8  # rtol = atol of the searches' trial strides
@@ -93,7 +92,7 @@ def _phase(x0, k, hopper: Hopper, liftoff: bool, rtol, atol):
     """Integrate eq 10 from `x0` until the bottom (`liftoff=False`) or liftoff, or a fall.
 
     Returns:
-        `(x_end, code)` as `jaxhop._slip._phase`.
+        `(x_end, code)` as `jaxhop._models.slip.stride._phase`.
     """
     rho0 = hopper.rho0
     if liftoff:
@@ -190,8 +189,8 @@ def _rise_clear(p_lo, v_lo, terrain: Terrain, hopper: Hopper, wind):
     t_up = max(v_lo[1], 0.0) / hopper.g
     for s, e, hb in terrain.as_lists():
         for w in (s, e):
-            for t in _crossings1(p_lo[0], v_lo[0], wind, w):
-                if t <= t_up and _pos1(p_lo[1], v_lo[1], -hopper.g, _fin(t)) < hb:
+            for t in crossings_one(p_lo[0], v_lo[0], wind, w):
+                if t <= t_up and position_one(p_lo[1], v_lo[1], -hopper.g, finite_one(t)) < hb:
                     return False
     return True
 
@@ -277,7 +276,7 @@ def trial_speed(apex, goal, h, th, kc, hopper: Hopper, terrain=None, tol=SEARCH_
     return FAIL_SPEED if x_lo[1] < 0 else -FAIL_SPEED
 
 
-def _clip_p(p):
+def clip_p(p):
     return min(max(float(p[0]), TH_LO), TH_HI), min(max(float(p[1]), 0.0), 1.0)
 
 
@@ -286,7 +285,7 @@ def _residual(p, apex, goal, h, hopper: Hopper, sqrt_w, terrain=None, tol=SEARCH
     the JAX solver clips its iterates; `1e3` where the trial fails."""
     if not np.all(np.isfinite(p)):
         return sqrt_w * 1e3
-    th, s = _clip_p(p)
+    th, s = clip_p(p)
     kc_lo, kc_hi = kc_limits(hopper)
     nxt, code, _ = trial(apex, goal, h, th, kc_lo + s * (kc_hi - kc_lo), hopper, tol, terrain)
     return sqrt_w * (nxt - goal) if code == OK else sqrt_w * 1e3
@@ -343,7 +342,7 @@ def _jacobian(p, apex, goal, h, hopper: Hopper, sqrt_w, terrain=None):
                      (res(p[0], p[1] + DIFF_STEP) - base) / DIFF_STEP], axis=1)
 
 
-def _gauss_newton(p0, apex, goal, h, hopper: Hopper, sqrt_w, max_iter=16, cost_tol=1e-16,
+def gauss_newton(p0, apex, goal, h, hopper: Hopper, sqrt_w, max_iter=16, cost_tol=1e-16,
                   terrain=None, min_trust=0.0, stall=0.0, tol=SEARCH_TOL):
     """`_deadbeat_gradient`'s damped Gauss-Newton, step for step: the step
     `(J'J + 1e-12 tr(J'J) I)^-1 J'r` times the trust scale, clipped to `MAX_STEP` per
@@ -391,7 +390,7 @@ def _gauss_newton(p0, apex, goal, h, hopper: Hopper, sqrt_w, max_iter=16, cost_t
     return best, cost_b
 
 
-def _multi_start(apex, goal, h, hopper: Hopper, sqrt_w, method="gauss-newton", terrain=None):
+def multi_start(apex, goal, h, hopper: Hopper, sqrt_w, method="gauss-newton", terrain=None):
     """The multi-start solver: the best end `(p, C2)` of the starts of `initial_guesses`."""
     best, best_cost = None, INF
     for p0 in initial_guesses(apex, goal, h, hopper, terrain):
@@ -399,9 +398,9 @@ def _multi_start(apex, goal, h, hopper: Hopper, sqrt_w, method="gauss-newton", t
             sol = least_squares(_residual, p0, method="lm", jac="2-point",
                                 diff_step=LM_DIFF_STEP, ftol=1e-15, xtol=1e-15, gtol=1e-15,
                                 max_nfev=MAX_NFEV, args=(apex, goal, h, hopper, sqrt_w, terrain))
-            end, cost = _clip_p(sol.x), 2.0 * sol.cost
+            end, cost = clip_p(sol.x), 2.0 * sol.cost
         elif method == "gauss-newton":
-            end, cost = _gauss_newton(p0, apex, goal, h, hopper, sqrt_w, terrain=terrain)
+            end, cost = gauss_newton(p0, apex, goal, h, hopper, sqrt_w, terrain=terrain)
         else:
             raise ValueError(f"method must be 'gauss-newton' or 'lm', got {method!r}")
         if cost < best_cost:  # the first of equal costs wins, as jnp.argmin
@@ -409,42 +408,3 @@ def _multi_start(apex, goal, h, hopper: Hopper, sqrt_w, method="gauss-newton", t
     if best is None:  # every start ended at a non-finite cost: argmin of NaNs is the first
         best = initial_guesses(apex, goal, h, hopper, terrain)[0]
     return best, best_cost
-
-
-def deadbeat_slip(apex, goal, h, hopper: Hopper, method: str = "gauss-newton",
-                  terrain: Terrain | None = None, table=None, fallback=True,
-                  accept=1e-8, full=False, tol=SEARCH_TOL):
-    """Position-aware SLIP deadbeat `(u, ok)` from `apex` to `goal` over a foothold at `h`.
-
-    `u = (th_td, kc, kd)` clipped to the limits; `ok` when no clipping was needed and the
-    trial stride with `u` completes (as `jaxhop._slip_deadbeat.deadbeat_slip`, "gradient").
-
-    Arguments:
-        method: `"gauss-newton"` (the JAX gradient solver's iteration, finite-difference
-            Jacobian; the default, used by the execution path) or `"lm"`
-            (`scipy.optimize.least_squares`, MINPACK Levenberg-Marquardt).
-        terrain: plan each trial on the block the foot lands on in this map (as JAX).
-        table: `(values, grid)` of the SLIP table: the staged table-start solve (Gauss-Newton
-            only), `fallback` and `accept` as in JAX. `full`: also the stage.
-        tol: rtol = atol of the table-start solve's trial strides (a decision's: 1e-5).
-    """
-    apex, goal, h = np.asarray(apex, float), np.asarray(goal, float), float(h)
-    sqrt_w = np.sqrt(np.array([W_POS, W_POS, W_VEL]))
-    stage = 3
-    if table is None:
-        best, _ = _multi_start(apex, goal, h, hopper, sqrt_w, method, terrain)
-    else:
-        from ._slip_table import _staged
-
-        best, _, stage = _staged(apex, goal, h, hopper, sqrt_w, table, terrain, fallback,
-                                 accept, tol)
-    th, s = _clip_p(best)
-    kc_lo, kc_hi = kc_limits(hopper)
-    kc = kc_lo + s * (kc_hi - kc_lo)
-    _, code, kd = trial(apex, goal, h, th, kc, hopper, tol, terrain)
-    kc_c = min(max(kc, kc_lo), kc_hi)
-    # As jnp.clip: +-inf clips to the limits, NaN stays NaN (then kc is used).
-    kd_c = kd if math.isnan(kd) else min(max(kd, RATIO_LO * kc_c), RATIO_HI * kc_c)
-    ok = code == OK and kd_c == kd and kc_c == kc and math.isfinite(kd)
-    u = np.array([th, kc_c, kd_c if math.isfinite(kd_c) else kc_c])
-    return (u, ok, stage) if full else (u, ok)

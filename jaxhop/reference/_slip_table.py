@@ -1,9 +1,9 @@
-"""The SLIP deadbeat's table start with NumPy (twin of `jaxhop._slip_table`).
+"""The SLIP deadbeat's table start with NumPy (twin of `jaxhop._models.slip.table`).
 
 The table's values are data, read from the JAX table (`SlipTable.data()`): a `(values,
 grid)` pair, `grid` the five `(lo, hi, n)` axes of `(zeta, nu, eps, th, s)`. The plane of a
 query, its bilinear interpolant and the damped Gauss-Newton refinement on it, the starts,
-and the Gauss-Newton polish one start at a time (`_slip._gauss_newton`, the multi-start
+and the Gauss-Newton polish one start at a time (`_slip.gauss_newton`, the multi-start
 starts of `_slip.initial_guesses` last) are the JAX code's, step for step.
 
 One sample per call, plain floats; no jax import.
@@ -16,9 +16,9 @@ import math
 import numpy as np
 
 from ._model import INF, OK, Hopper, touchdown_one
-from ._slip import W_POS, W_VEL, _gauss_newton, initial_guesses
+from ._slip import W_POS, W_VEL, gauss_newton, initial_guesses
 
-# Mirrors of jaxhop._slip_table constants.
+# Mirrors of jaxhop._models.slip.table constants.
 TABLE_STARTS = 3
 POLISH_ITER = 6
 POLISH_MIN_TRUST = 1.0 / 64
@@ -65,7 +65,7 @@ def _bilinear(plane, p, grid):
 
 
 def _refine(plane, p0, target, grid, e0):
-    """`jaxhop._slip_table._refine`: damped Gauss-Newton on the plane's interpolant, from
+    """`jaxhop._models.slip.table._refine`: damped Gauss-Newton on the plane's interpolant, from
     `p0` with squared error `e0`."""
     lo = np.array([grid[3][0], grid[4][0]])
     hi = np.array([grid[3][1], grid[4][1]])
@@ -97,7 +97,7 @@ def _refine(plane, p0, target, grid, e0):
 def table_starts(values, grid, apex, goal, h, hopper: Hopper, n_starts=TABLE_STARTS,
                  terrain=None):
     """`n_starts` refined table starts `(th, s)`, best first, and their squared errors
-    (`jaxhop._slip_table`)."""
+    (`jaxhop._models.slip.table`)."""
     plane = table_slice(values, grid, apex, goal, h, hopper)
     target = np.array([(goal[0] - apex[0]) / hopper.rho0,
                        goal[2] / math.sqrt(hopper.g * hopper.rho0)])
@@ -125,8 +125,8 @@ def table_starts(values, grid, apex, goal, h, hopper: Hopper, n_starts=TABLE_STA
     return [refined[i][0] for i in order], [refined[i][1] for i in order]
 
 
-def _staged(apex, goal, h, hopper: Hopper, sqrt_w, table, terrain, fallback, accept, tol):
-    """`jaxhop._slip_table._deadbeat_table`: one start at a time until one ends with
+def staged(apex, goal, h, hopper: Hopper, sqrt_w, table, terrain, fallback, accept, tol):
+    """`jaxhop._models.slip.table._deadbeat_table`: one start at a time until one ends with
     C2 <= `accept` (the table's starts, best first, then with `fallback` the multi-start
     solver's starts, all with the polish's stops; only the latter where the table has no
     start); the best end wins. Returns `(p, C2, stage)`."""
@@ -137,13 +137,13 @@ def _staged(apex, goal, h, hopper: Hopper, sqrt_w, table, terrain, fallback, acc
     i = TABLE_STARTS if none else 0
     while i < n_all and cost > accept:
         if i < TABLE_STARTS:
-            end, c = _gauss_newton(starts[i], apex, goal, h, hopper, sqrt_w, POLISH_ITER,
+            end, c = gauss_newton(starts[i], apex, goal, h, hopper, sqrt_w, POLISH_ITER,
                                    polish_cost(tol), terrain, POLISH_MIN_TRUST, POLISH_STALL,
                                    tol)
         else:
             if guesses is None:
                 guesses = initial_guesses(apex, goal, h, hopper, terrain, tol)
-            end, c = _gauss_newton(guesses[i - TABLE_STARTS], apex, goal, h, hopper, sqrt_w,
+            end, c = gauss_newton(guesses[i - TABLE_STARTS], apex, goal, h, hopper, sqrt_w,
                                    MULTI_ITER, polish_cost(tol), terrain, POLISH_MIN_TRUST,
                                    POLISH_STALL, tol)
         if c < cost:

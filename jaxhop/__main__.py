@@ -1,0 +1,7 @@
+"""`python -m jaxhop`: the `jaxhop` command line."""
+
+import sys
+
+from ._cli.main import main
+
+sys.exit(main())

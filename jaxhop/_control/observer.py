@@ -1,0 +1,175 @@
+"""Disturbance observer of the adaptive controller: a constant wind learnt from apexes.
+
+The controller predicts the apex each stride should reach; the next measured apex tells it
+how far reality differs. A constant horizontal flight acceleration `a_w` (wind) is
+estimated online from those prediction errors with a scalar Kalman filter
+(`docs/decisions.md`, "Adaptive controller"):
+
+- prediction: the model's apex map from the measured apex the stride started from, with
+  the controls it applied, over the foothold height sensed at touchdown, flown with the
+  current estimate `a`: `pred = Fa(z_meas, u, h; a)` (BHop: eq 22; SLIP: its apex map,
+  with the stance's target energy where the stride used one);
+- measurement: the innovation in horizontal velocity `nu = ydot_meas - pred_ydot`, with
+  `H = d pred_ydot / d a` (about the flight time: the wind acts for the descent and the
+  rise, the descent part passing through the stance; through diffrax for the SLIP);
+- measurement noise `R = (w_v^2 + sum_i (J_i w_i)^2) / 3 + R_MIN`: uniform noise of
+  half-width `w` has variance `w^2 / 3`; the new apex carries `w_v`, the apex the
+  prediction started from carries `w` through `J = d pred_ydot / d z_meas`;
+- process noise `Q` per stride: small, the wind is modelled as constant (a slow drift is
+  still followed).
+
+The same predictions give the controller a filtered apex to decide on (an extended
+Kalman filter of the apex state; `docs/decisions.md`, "Apex filter"): the predicted apex
+`pred` with the new wind estimate, its covariance `J P J^T + H H^T var_a + Q` (`Q`: the
+landing error's variance on `y`, else model rounding), fused with the measurement of
+variance `w^2 / 3` per axis. Without sensor noise the estimate is the measurement,
+bit for bit; a run's first apex, and the one after a stride that did not complete, start
+the filter again from the measurement.
+
+State per run (`Observer`), reset per run, one sample at a time (vmapped by the drivers).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import diffrax
+import jax
+import jax.numpy as jnp
+
+from .._core.params import Hopper
+from .._models.bhop import bhop_apex_map
+
+#: Prior variance of the wind (m/s^2)^2: a standard deviation of 1 m/s^2, five times the
+#: paper's wind, so the first innovation is trusted almost fully.
+PRIOR_VAR = 1.0
+#: Process noise per stride (m/s^2)^2: a constant wind, allowed to drift by ~1e-3 m/s^2.
+PROCESS_VAR = 1e-6
+#: Floor of the measurement variance (m/s)^2 (model rounding when there is no sensor noise).
+R_MIN = 1e-12
+#: Floor of the apex prediction's variance, m^2 and (m/s)^2 (model rounding).
+Q_MIN = 1e-10
+#: Innovations below this (m/s) are rounding, not wind: the filter skips them, so an
+#: undisturbed run keeps an estimate of exactly 0. The SLIP's floor is its integration
+#: noise: the prediction is a second diffrax solve of the executed stride (rtol 1e-10),
+#: from a touchdown computed in closed form rather than on the terrain.
+NU_MIN = 1e-9
+NU_MIN_SLIP = 1e-7
+
+
+class Observer(NamedTuple):
+    """The observer of one run: the estimate `wind` (m/s^2) and its variance `var`; the
+    filtered apex `estimate` the controller decides on and its covariance `est_var`; the
+    stride awaiting its measured apex (`pending`): the apex estimate it started from, its
+    controls, the sensed foothold height and the stance's target energy (NaN: none)."""
+
+    wind: jnp.ndarray
+    var: jnp.ndarray
+    apex: jnp.ndarray
+    u: jnp.ndarray
+    h: jnp.ndarray
+    pending: jnp.ndarray
+    energy: jnp.ndarray
+    estimate: jnp.ndarray
+    est_var: jnp.ndarray
+
+
+def observer_init() -> Observer:
+    """No wind known, nothing pending."""
+    z = jnp.zeros(3)
+    return Observer(jnp.asarray(0.0), jnp.asarray(PRIOR_VAR), z, z, jnp.asarray(0.0),
+                    jnp.asarray(False), jnp.asarray(jnp.nan), z, jnp.zeros((3, 3)))
+
+
+def bhop_terms(obs: Observer, hopper: Hopper):
+    """`(pred, H, J)` of the pending BHop stride: the predicted apex, its derivatives in
+    the wind `(3,)` and in the apex it started from `(3, 3)`."""
+    f = lambda a, z: bhop_apex_map(z, obs.u, obs.h, hopper, a)  # noqa: E731
+    pred, h_wind = jax.jvp(lambda a: f(a, obs.apex), (obs.wind,), (jnp.ones_like(obs.wind),))
+    return pred, h_wind, jax.jacfwd(lambda z: f(obs.wind, z))(obs.apex)
+
+
+def slip_terms(obs: Observer, hopper: Hopper):
+    """`bhop_terms` for the SLIP stride: its apex map (with the stance's target energy where
+    the stride used one), both derivatives in one forward-mode pass through diffrax."""
+    from .._models.slip.stride import STRIDE_TOL, Tolerances, slip_apex_map
+
+    tol = Tolerances(STRIDE_TOL.rtol, STRIDE_TOL.atol, diffrax.ForwardMode())
+
+    def f(x):
+        nxt, _ = slip_apex_map(x[1:], obs.u, obs.h, hopper, tol, x[0], obs.energy)
+        return nxt
+
+    x = jnp.concatenate([obs.wind[None], obs.apex])
+    jac = jax.jacfwd(f)(x)
+    return f(x), jac[:, 0], jac[:, 1:]
+
+
+def observe(obs: Observer, measured, sensor, hopper: Hopper, terms=bhop_terms,
+            nu_min=NU_MIN, landing=0.0) -> Observer:
+    """The Kalman update with the apex measured after the pending stride (none pending, or
+    an innovation below `nu_min`: the estimate is kept), then the apex estimate (`fuse`).
+
+    `sensor`: the half-widths of the uniform apex noise `(y, z, ydot)`. `terms`: the
+    model's prediction, `bhop_terms` or `slip_terms`. `landing`: the half-width of the
+    landing error on `y` (0: none).
+    """
+    pred, h_wind, jac = terms(obs, hopper)
+    # The new apex carries w_v; the apex the prediction started from carries est_var.
+    r = sensor[2] ** 2 / 3.0 + jac[2] @ obs.est_var @ jac[2] + R_MIN
+    p = obs.var + PROCESS_VAR
+    nu = measured[2] - pred[2]
+    gain = p * h_wind[2] / (h_wind[2] ** 2 * p + r)
+    use = obs.pending & (jnp.abs(nu) >= nu_min) & jnp.isfinite(nu) & jnp.isfinite(gain)
+    wind = jnp.where(use, obs.wind + gain * nu, obs.wind)
+    var = jnp.where(use, (1.0 - gain * h_wind[2]) * p, obs.var)
+    estimate, est_var = fuse(obs, measured, sensor, pred + h_wind * (wind - obs.wind),
+                             h_wind, jac, var, landing)
+    return obs._replace(wind=wind, var=var, pending=jnp.asarray(False), estimate=estimate,
+                        est_var=est_var)
+
+
+def fuse(obs: Observer, measured, sensor, pred, h_wind, jac, wind_var, landing=0.0):
+    """`(estimate, covariance)` of the apex: the prediction `pred` of the pending stride
+    fused with the measurement (the Kalman gain of the linearised stride). No sensor noise,
+    nothing pending or a non-finite prediction: the measurement itself."""
+    r = jnp.asarray(sensor, float) ** 2 / 3.0
+    q = jnp.zeros(3).at[0].set(jnp.asarray(landing, float) ** 2 / 3.0) + Q_MIN
+    p = jac @ obs.est_var @ jac.T + wind_var * jnp.outer(h_wind, h_wind) + jnp.diag(q)
+    gain = jnp.linalg.solve(p + jnp.diag(r), p).T  # P S^-1, with P and S symmetric
+    est = pred + gain @ (measured - pred)
+    cov = (jnp.eye(3) - gain) @ p
+    cov = 0.5 * (cov + cov.T)
+    use = (obs.pending & jnp.any(r > 0) & jnp.all(jnp.isfinite(est))
+           & jnp.all(jnp.isfinite(cov)))
+    return jnp.where(use, est, measured), jnp.where(use, cov, jnp.diag(r))
+
+
+#: The leg of a spring-leg (SLIP) hopper is placed in flight: its controller measures the
+#: horizontal velocity again after this fraction of the fall from the apex to the map under
+#: it, before it sets the touchdown angle.
+DESCENT_FRACTION = 0.5
+
+
+def observe_descent(obs: Observer, measured_ydot, ydot_descent, t, sensor) -> Observer:
+    """The Kalman update with the horizontal velocity measured `t` seconds into the
+    descent: `(ydot_descent - measured_ydot) / t` measures the wind directly (`H = 1`),
+    with the variance `2 w_v^2 / (3 t^2)` of two uniform velocity errors. `t == 0` (no
+    descent to measure in): the estimate is kept."""
+    t_safe = jnp.where(t > 0, t, 1.0)
+    nu = (ydot_descent - measured_ydot) / t_safe - obs.wind
+    r = 2.0 * sensor[2] ** 2 / (3.0 * t_safe**2) + R_MIN
+    p = obs.var + PROCESS_VAR
+    gain = p / (p + r)
+    use = (t > 0) & jnp.isfinite(nu)
+    return obs._replace(wind=jnp.where(use, obs.wind + gain * nu, obs.wind),
+                        var=jnp.where(use, (1.0 - gain) * p, obs.var))
+
+
+def after_stride(obs: Observer, measured, u, h, completed, energy=None) -> Observer:
+    """Record a stride for the next update (only a completed stride is compared).
+    `measured`: the apex estimate the stride was decided on. `energy`: the target energy
+    its stance used (`None`: none)."""
+    energy = jnp.asarray(jnp.nan if energy is None else energy, float)
+    return obs._replace(apex=measured, u=u, h=jnp.asarray(h, float),
+                        pending=jnp.asarray(completed), energy=energy)

@@ -1,0 +1,134 @@
+"""SLIP runs: a pool of lanes refilled between strides (`docs/decisions.md`, "SLIP runs: a
+lane pool instead of vmapped chunks").
+
+A vmapped while loop runs until the longest run of its chunk ends: with SLIP strides (a
+deadbeat solve each) a chunk holding one run that loops to max_steps costs 60 strides per
+lane where most runs need about 12. So SLIP runs go through a pool instead: every device
+steps `pool_lanes()` runs by one stride (`run_step`, vmapped), the host retires the runs
+that ended and puts the next ones in their lanes (one host thread per device, each with
+its own share of the runs). Lanes with nothing to run repeat a live run of their device
+(same cost, results discarded). The lane count is fixed, so one compilation per device
+serves every sweep: `POOL_LANES` on a CPU, where lanes share a core; `ACCELERATOR_LANES`
+on a GPU or TPU, where a step costs about the same for one lane as for thousands (its
+time is the chain of small solver steps, not the arithmetic); `$JAXHOP_POOL_LANES`
+overrides both.
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+from collections import deque
+from concurrent.futures import ThreadPoolExecutor
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._control.runloop import RunConfig, World, run_init, run_live, run_result, run_step
+from .._core.programs import stored_program
+
+POOL_LANES = 32
+ACCELERATOR_LANES = 4096
+
+
+def pool_lanes(device=None) -> int:
+    """Lanes per device: `$JAXHOP_POOL_LANES`, else by the device's platform."""
+    env = os.environ.get("JAXHOP_POOL_LANES")
+    if env:
+        lanes = int(env) if env.strip().isdigit() else 0
+        if lanes < 1:
+            raise ValueError(f"JAXHOP_POOL_LANES must be a positive integer, got {env!r}")
+        return lanes
+    device = device or jax.local_devices()[0]
+    return POOL_LANES if device.platform == "cpu" else ACCELERATOR_LANES
+
+
+def _pool_step(carry, fresh, apex0, index, key, tables, true_terrain, hopper, disturbance,
+               config):
+    # Lanes marked `fresh` start their run here (`run_init` from `apex0`).
+    carry = jax.vmap(lambda c, f, a: jax.tree.map(lambda new, old: jnp.where(f, new, old),
+                                                  run_init(a, config), c))(carry, fresh, apex0)
+    keys = jax.vmap(jax.random.fold_in, (None, 0))(key, index)
+    world = World(tables, true_terrain, hopper, disturbance)
+    carry = jax.vmap(run_step, (0, 0, None, None))(carry, keys, world, config)
+    live = jax.vmap(lambda c: run_live(c, config))(carry)
+    final = jax.vmap(lambda c: run_result(c, config)[0])(carry)
+    return carry, live, final
+
+
+def _lane_batch(pick, treedef, dev):
+    """The carries, run indices and `fresh` flags of the lanes, on `dev`."""
+    batch = [np.stack([p[1][i] for p in pick]) for i in range(treedef.num_leaves)]
+    index = np.asarray([p[0] for p in pick])
+    fresh = np.asarray([p[2] for p in pick])
+    return jax.tree_util.tree_unflatten(treedef, jax.device_put(batch, dev)), index, fresh
+
+
+def pool_runs(runs, apex0, key, consts, config: RunConfig, on_done, lanes=None, *,
+              strides: int | None = None, devices=None):
+    """Run `runs` (indices into `apex0`) through the pool; `on_done(run, fields)` is called
+    as each ends, with `fields` in `RUN_FIELDS` order. `consts` are `(tables, true_terrain,
+    hopper, disturbance, config)`. `strides`: end every run after that many apexes (its
+    code is then `run_result`'s for a run cut off), with the same compiled step.
+    `devices`: default, every local device.
+
+    One host thread per device, each with its own queue (every `n_devices`-th run): the
+    devices step (and, the first time, compile) concurrently, and none waits for another.
+    A run's last bits depend on the lane it occupies and on its neighbours (XLA vectorises
+    the lanes), so the runs are dealt to the devices in a fixed order rather than taken
+    from a shared queue as each thread gets to it: the same runs then give bitwise the
+    same results on the same number of devices, whatever the threads' timing.
+    """
+    if not runs:
+        return
+    lanes = pool_lanes() if lanes is None else lanes
+    # Placeholder leaves for a lane whose run starts in the next step (`fresh`).
+    blank, treedef = jax.tree_util.tree_flatten(jax.device_get(run_init(jnp.zeros(3), config)))
+    devices = list(jax.local_devices() if devices is None else devices)
+    lock, stop = threading.Lock(), threading.Event()
+
+    def worker(dev, queue):
+        on_dev = jax.device_put((key,) + tuple(consts), dev)
+        active = []  # (run, carry leaves, fresh)
+        while not stop.is_set():
+            while queue and len(active) < lanes:
+                active.append((queue.popleft(), blank, True))
+            if not active:
+                return
+            # Spare lanes repeat live runs (same cost; their results are discarded).
+            pick = [active[j % len(active)] for j in range(lanes)]
+            carry, index, fresh = _lane_batch(pick, treedef, dev)
+            out = step(*jax.tree_util.tree_leaves((carry, *jax.device_put(
+                (fresh, apex0[index], index), dev), *on_dev)))
+            *leaves, live, final = [np.asarray(x) for x in out]
+            still, ended = [], []
+            for slot, (run, _, _) in enumerate(active):
+                mine = [x[slot] for x in leaves]
+                _, _, steps, k, (apexes, feet, used), control = (
+                    jax.tree_util.tree_unflatten(treedef, mine))
+                if live[slot] and (strides is None or k < strides):
+                    still.append((run, mine, False))
+                else:
+                    ended.append((run, (final[slot], steps, apexes, feet, used,
+                                        control.recoveries)))
+            active = still
+            with lock:
+                for run, fields in ended:
+                    on_done(run, fields)
+
+    # The step, loaded from disk or traced once here on lanes as the workers build them
+    # (`jaxhop._core.programs`; tracing a SLIP decision takes about 20 s of Python): the device
+    # threads then find it in jit's cache and only compile it (or load it from JAX's cache).
+    carry0, index0, fresh0 = _lane_batch([(runs[0], blank, True)] * lanes, treedef, devices[0])
+    args0 = (carry0, fresh0, apex0[index0], index0, key, *consts)
+    step = stored_program("pool-step", _pool_step, args0)
+    step.trace(*jax.tree_util.tree_leaves(args0))
+    with ThreadPoolExecutor(len(devices)) as ex:
+        futures = [ex.submit(worker, dev, deque(runs[i::len(devices)]))
+                   for i, dev in enumerate(devices)]
+        try:
+            for f in futures:
+                f.result()
+        finally:
+            stop.set()

@@ -1,0 +1,290 @@
+"""The stages of a reactive plan, shared by full builds and course updates (Figs. 7, 10-12).
+
+situate -> candidate pairs -> screen -> instantiate -> goal policies -> prepares -> safety
+sampling -> deploy. Each jitted stage is a one-sample function of `policies.py` vmapped over
+a batch and run by `chunked_map` on a few fixed chunk shapes (`Layout.chunking`), so that a
+whole plan, or a whole course of updates, compiles each stage at most twice.
+"""
+
+from __future__ import annotations
+
+import time
+from functools import partial
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._core.batching import chunked_map
+from .._core.params import Hopper
+from .._core.terrain import Terrain
+from .policies import (
+    candidate_situated,
+    goal_policy_margin,
+    goal_robustness,
+    pair_goal,
+    pair_may_intersect,
+    situated_table,
+    template_boxes,
+)
+from .templates import Templates
+
+#: Weights of the edge distance (cubed) and of the goal margin in the safety of eq 34.
+SAFETY_WE = 0.5
+SAFETY_WG = 1.0
+#: Half-width (m, m, m/s) of the safety-sampling box around each goal, 1 m hopper.
+PROBE_HALF_WIDTH = 0.2
+#: Chunk sizes: pairs instantiated, pairs screened (cheap: 4x), rows of `P`, probes.
+PAIR_CHUNK = 4096
+SCREEN_CHUNK = 4 * PAIR_CHUNK
+ROW_CHUNK = 8192
+PROBE_CHUNK = 65536
+GOAL_CHUNK = 1024
+
+
+# --- one sample, vmapped at the edge ------------------------------------------------------
+
+
+def _screen(ti, si, tj, sj, boxes, table, templates, hopper, grid):
+    return jax.vmap(pair_may_intersect, (0, 0, 0, 0, 0, None, None, None, None))(
+        ti, si, tj, sj, boxes, table, templates, hopper, grid)
+
+
+def _pairs(ti, si, tj, sj, boxes, table, templates, terrain, hopper, grid):
+    return jax.vmap(pair_goal, (0, 0, 0, 0, 0, None, None, None, None, None))(
+        ti, si, tj, sj, boxes, table, templates, terrain, hopper, grid)
+
+
+def _rows(goals, allowed, table, templates, terrain, hopper):
+    ids, inside = jax.vmap(candidate_situated, (0, None, None, None, None))(
+        goals, table, templates, terrain, hopper)
+    return ids, inside & allowed[ids]
+
+
+def _goal_policies(goal, ti, si, table, templates, terrain, hopper):
+    return jax.vmap(goal_policy_margin, (None, 0, 0, None, None, None, None))(
+        goal, ti, si, table, templates, terrain, hopper)
+
+
+def _robustness(goals, table, templates, terrain, hopper, half_width):
+    return jax.vmap(goal_robustness, (0, None, None, None, None, None))(
+        goals, table, templates, terrain, hopper, half_width)
+
+
+def _held(points, allowed, table, templates, terrain, hopper):
+    """Whether an allowed situated policy's domain holds each probe point."""
+    def held(p):
+        ids, inside = candidate_situated(p, table, templates, terrain, hopper)
+        return jnp.any(inside & allowed[ids])
+
+    return jax.vmap(held)(points)
+
+
+screen_jit = jax.jit(_screen, static_argnames=("grid",))
+pairs_jit = jax.jit(_pairs, static_argnames=("grid",))
+rows_jit = jax.jit(_rows)
+goal_jit = jax.jit(_goal_policies)
+robustness_jit = jax.jit(_robustness)
+held_jit = jax.jit(_held)
+
+
+# --- situate ------------------------------------------------------------------------------
+
+_BOX_CACHE: dict = {}
+
+
+def relative_boxes(templates: Templates, hopper: Hopper):
+    """`template_boxes` as NumPy arrays, computed once per templates and hopper."""
+    key = (templates.as_array().tobytes(), templates.seg_length, float(hopper.m),
+           float(hopper.g), float(hopper.rho0))
+    if key not in _BOX_CACHE:
+        _BOX_CACHE[key] = tuple(np.asarray(x) for x in template_boxes(templates, hopper))
+    return _BOX_CACHE[key]
+
+
+def chunk_sizes(chunk: int, n: int, chunking: str) -> tuple[int, int]:
+    """`chunked_map`'s `(size, tail)` for `n` items.
+
+    `"fixed"`: `chunk` only. `"fit"`: `chunk // 8` if that holds all `n`, else `chunk`.
+    `"tail"` (an update): whole `chunk`s, then `chunk // 8` for the rest, so that padding
+    wastes at most `chunk // 8` items. Either way two shapes at most are compiled.
+    """
+    if chunking == "tail":
+        return chunk, chunk // 8
+    if chunking == "fit" and n <= chunk // 8:
+        return chunk // 8, chunk // 8
+    return chunk, chunk
+
+
+class Layout:
+    """The situated policies of a plan: one per template and segment (Fig. 7).
+
+    Situated policy `i` is template `t_of[i]` on segment `s_of[i]`; `gf_world`, `d_world`
+    are the `(n_sit, 3, 2)` boxes of its `Gf` and domain in world coordinates. The jitted
+    stages see `jtable`, `jterrain` and `jallowed` (a course pads them to buckets) and cut
+    their batches as `chunking` says (`chunk_sizes`).
+    """
+
+    chunking = "fixed"
+
+    def __init__(self, terrain: Terrain, segs, templates: Templates, hopper: Hopper):
+        self.terrain, self.segs, self.templates, self.hopper = terrain, segs, templates, hopper
+        self.table = situated_table(terrain, segs, templates.seg_length)
+        self.nt, self.n_seg = templates.n, segs.n
+        self.n_sit = self.nt * self.n_seg
+        self.t_of = np.arange(self.n_sit) % self.nt
+        self.s_of = np.arange(self.n_sit) // self.nt
+        gf_rel, d_rel = relative_boxes(templates, hopper)
+        centre = np.asarray(segs.centre)
+        offset = np.stack([centre[self.s_of, 0], centre[self.s_of, 1] + hopper.rho0,
+                           np.zeros(self.n_sit)], 1)
+        self.gf_world = gf_rel[self.t_of] + offset[:, :, None]
+        self.d_world = d_rel[self.t_of] + offset[:, :, None]
+        self.jtable, self.jterrain = self.table, terrain
+        self.jallowed = jnp.ones(self.n_sit, bool)
+
+    def pair_args(self, rows, cols):
+        """`(ti, si, tj, sj, boxes)` of pairs `(rows, cols)`; `boxes`: their overlap in z, ydot."""
+        gf, d = self.gf_world, self.d_world
+        boxes = np.stack([np.maximum(gf[rows, 1:, 0], d[cols, 1:, 0]),
+                          np.minimum(gf[rows, 1:, 1], d[cols, 1:, 1])], axis=2)
+        return self.t_of[rows], self.s_of[rows], self.t_of[cols], self.s_of[cols], boxes
+
+    def map(self, fn, n, chunk, batched, consts=(), bar=None):
+        """`chunked_map` with this layout's chunk sizes."""
+        size, tail = chunk_sizes(chunk, n, self.chunking)
+        return chunked_map(fn, n, size, batched, consts, tail=tail, bar=bar)
+
+
+# --- the jitted stages --------------------------------------------------------------------
+
+
+def screen(lay: Layout, args, grid) -> np.ndarray:
+    """Which pairs may intersect before the collision clauses (`pair_may_intersect`)."""
+    n = args[0].shape[0]
+    if n == 0:
+        return np.zeros(0, bool)
+    return lay.map(partial(screen_jit, grid=grid), n, SCREEN_CHUNK, args,
+                   (lay.jtable, lay.templates, lay.hopper))
+
+
+def instantiate(lay: Layout, args, grid, bar=None):
+    """`(found, goal, margin, margin_d)` of each pair (`pair_goal`)."""
+    n = args[0].shape[0]
+    if n == 0:
+        return np.zeros(0, bool), np.zeros((0, 3)), np.zeros(0), np.zeros(0)
+    return lay.map(partial(pairs_jit, grid=grid), n, PAIR_CHUNK, args,
+                   (lay.jtable, lay.templates, lay.jterrain, lay.hopper), bar)
+
+
+def goal_policies(lay: Layout, goal, idx, chunk: int | None = GOAL_CHUNK):
+    """`(ok, margin)` of situated policies `idx` for the global goal (`goal_policy_margin`).
+
+    `chunk=None`: one batch of all of `idx`.
+    """
+    consts = (lay.jtable, lay.templates, lay.jterrain, lay.hopper)
+    goal = jnp.asarray(goal)
+    if chunk is None:
+        return tuple(np.asarray(x) for x in goal_jit(goal, lay.t_of[idx], lay.s_of[idx],
+                                                     *consts))
+    return lay.map(partial(goal_jit, goal), idx.size, chunk, (lay.t_of[idx], lay.s_of[idx]),
+                   consts)
+
+
+def prepares_rows(lay: Layout, goals):
+    """`(ids, inside)`: the allowed situated policies whose domain holds each goal."""
+    n = goals.shape[0]
+    if n == 0:
+        return np.zeros((0, 3 * lay.nt), np.int64), np.zeros((0, 3 * lay.nt), bool)
+    return lay.map(rows_jit, n, ROW_CHUNK, (goals,),
+                   (lay.jallowed, lay.jtable, lay.templates, lay.jterrain, lay.hopper))
+
+
+def robustness(lay: Layout, goals, half_width) -> np.ndarray:
+    """Safety sampling of each goal (`goal_robustness`)."""
+    return np.asarray(lay.map(robustness_jit, goals.shape[0], ROW_CHUNK, (goals,),
+                              (lay.jtable, lay.templates, lay.jterrain, lay.hopper,
+                               jnp.full(3, float(half_width)))), float)
+
+
+def held(lay: Layout, points) -> np.ndarray:
+    """Whether an allowed situated domain holds each probe point."""
+    return lay.map(held_jit, points.shape[0], PROBE_CHUNK, (points,),
+                   (lay.jallowed, lay.jtable, lay.templates, lay.jterrain, lay.hopper))
+
+
+def probe_offsets(half_width) -> np.ndarray:
+    """`(27, 3)` probe offsets of safety sampling: the corners, edge and face centres and
+    centre of the box `+- half_width` (`goal_robustness`'s probes)."""
+    grid = np.stack(np.meshgrid(*[np.arange(-1.0, 2.0)] * 3, indexing="ij"), -1)
+    return grid.reshape(-1, 3) * np.asarray(half_width, float)
+
+
+# --- instantiated policies ----------------------------------------------------------------
+
+
+def instantiated(goal, goal_sit, goal_margin, rows, cols, goals, margin, margin_d):
+    """Goal policies first, then the nonempty pairs.
+
+    Returns:
+        `(situated, target, goals, margin, goal_margin_d, is_goal)`, one row each
+        (`target` -1 for a goal policy).
+    """
+    n_goal = goal_sit.size
+    sit = np.concatenate([goal_sit, rows]).astype(np.int64)
+    tgt = np.concatenate([np.full(n_goal, -1), cols]).astype(np.int64)
+    all_goals = np.concatenate([np.broadcast_to(goal, (n_goal, 3)), goals])
+    all_margin = np.concatenate([goal_margin, margin])
+    dg = np.concatenate([goal_margin, margin_d])
+    return sit, tgt, all_goals, all_margin, dg, np.arange(sit.size) < n_goal
+
+
+def holds_own_target(p, tgt, is_goal) -> np.ndarray:
+    """Whether each goal lies in the domain it was chosen for (goal policies: true)."""
+    return is_goal | np.asarray(p[np.arange(tgt.size), np.maximum(tgt, 0)]).ravel()
+
+
+def safety(lay: Layout, sit, goal_margin_d) -> np.ndarray:
+    """Eq 34: the segment's edge distance cubed and the goal's margin, weighted."""
+    de = np.asarray(lay.segs.edge_distance)
+    return SAFETY_WE * de[lay.s_of[sit]] ** 3 + SAFETY_WG * goal_margin_d
+
+
+def counts(lay: Layout, n_pairs, n_screened, sit, is_goal, order, n_edges, n_dropped) -> dict:
+    """The count keys of `Plan.stats`."""
+    return {
+        "n_segments": int(lay.n_seg),
+        "n_situated": int(lay.n_sit),
+        "n_candidate_pairs": int(n_pairs),
+        "n_screened_pairs": int(n_screened),
+        "n_instantiated": int(sit.size),
+        "n_goal_policies": int(is_goal.sum()),
+        "n_deployed": int(order.size),
+        "n_edges": n_edges,
+        "n_dropped": n_dropped,
+    }
+
+
+class Laps:
+    """Wall-clock (and, with `cpu`, process CPU) seconds of each stage of a build."""
+
+    def __init__(self, digits: int = 3, cpu: bool = False):
+        self.digits, self.cpu = digits, cpu
+        self.start = self.mark = time.perf_counter()
+        self.c_start = self.c_mark = time.process_time()
+        self.wall, self.cpu_s = {}, {}
+
+    def __call__(self, name: str) -> None:
+        now, cnow = time.perf_counter(), time.process_time()
+        self.wall[name] = round(now - self.mark, self.digits)
+        self.cpu_s[name] = round(cnow - self.c_mark, self.digits)
+        self.mark, self.c_mark = now, cnow
+
+    def stats(self) -> dict:
+        """`seconds` and `stage_seconds` (and their CPU twins)."""
+        out = {"seconds": round(time.perf_counter() - self.start, self.digits),
+               "stage_seconds": self.wall}
+        if self.cpu:
+            out["cpu_seconds"] = round(time.process_time() - self.c_start, self.digits)
+            out["stage_cpu_seconds"] = self.cpu_s
+        return out
