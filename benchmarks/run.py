@@ -118,23 +118,21 @@ def reference_plan_time(terrain, templates, every: int):
         t0 = time.perf_counter()
         plan = R.build_plan(rt, goal, rtm, R.Hopper())
         return time.perf_counter() - t0, plan.timings, plan.stats
-    from jaxhop.reference import _plan as P
-
     timings = {}
     t0 = time.perf_counter()
-    sit = P.situate(rt, rtm, R.Hopper())
+    sit = R.situate(rt, rtm, R.Hopper())
     gw, dw = R.world_boxes(sit, *R.template_boxes(sit.regions))
     rows, cols = R.candidate_pairs(gw, dw)
     timings["situate"] = time.perf_counter() - t0
     sub = np.arange(0, rows.size, every)
     t0 = time.perf_counter()
-    found, goals, _, _ = P.instantiate(sit, rows[sub], cols[sub], gw, dw)
+    found, goals, _, _ = R.instantiate(sit, rows[sub], cols[sub], gw, dw)
     timings["instantiate"] = (time.perf_counter() - t0) * rows.size / sub.size
     t0 = time.perf_counter()
-    P.goal_policies(sit, goal)
+    R.goal_policies(sit, goal)
     timings["goal_policies"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    P.prepares_and_robustness(sit, goals[found])
+    R.prepares_and_robustness(sit, goals[found])
     n_inst_est = found.mean() * rows.size
     timings["graph_and_safety_sampling"] = ((time.perf_counter() - t0) * n_inst_est
                                             / max(found.sum(), 1))
@@ -241,7 +239,6 @@ def random_slip_strides(seed, n):
 
 def bench_slip_strides(quick: bool):
     from jaxhop import make_terrain
-    from jaxhop.reference import _slip as RS
     from jaxhop.slip import slip_strides
 
     n = 4096
@@ -254,7 +251,7 @@ def bench_slip_strides(quick: bool):
     every = 4 if quick else 1
     sub = np.arange(0, n, every)
     t0 = time.perf_counter()
-    ref = [RS.slip_stride(apex[i], u[i], r_terrain, R.Hopper()) for i in sub]
+    ref = [R.slip_stride(apex[i], u[i], r_terrain, R.Hopper()) for i in sub]
     numpy_s = (time.perf_counter() - t0) * n / sub.size
     r_code = np.array([r[1] for r in ref])
     ok = (code[sub] == 0) & (r_code == 0)

@@ -124,3 +124,16 @@ def test_a_stored_array_is_computed_once_per_input_values(fresh, tmp_path):
     out = _programs.stored_array("sums", lambda: compute(x), (x, key), log=messages.append)
     assert len(calls) == 4 and messages and "unreadable" in messages[0]
     np.testing.assert_array_equal(out, first)
+
+
+def test_a_saved_program_is_keyed_by_every_source_file_of_the_package():
+    # A program traced from the old SLIP solver must not be loaded after the solver changes:
+    # the key covers each module of every subpackage, not only its own folder's.
+    import pathlib
+
+    import jaxhop
+
+    root = pathlib.Path(jaxhop.__file__).parent
+    expected = sorted(str(p.relative_to(root)) for p in root.rglob("*.py"))
+    assert sorted(_programs.source_files()) == expected
+    assert "_models/slip/kernels.py" in expected and "parkour/_run.py" in expected

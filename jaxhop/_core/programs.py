@@ -42,18 +42,27 @@ _KNOWN_CALLS = ("lapack_dgeqrf_ffi", "lapack_dorgqr_ffi", "lapack_dormqr_ffi",
                 "lapack_dgetrf_ffi", "lapack_dtrsm_ffi", "lapack_dpotrf_ffi")
 
 
+PACKAGE_ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))  # jaxhop/
+
+
+def source_files() -> list[str]:
+    """Every source file of the package, relative to its root, in a fixed order: what a
+    saved program was traced from."""
+    out = []
+    for folder, dirs, files in os.walk(PACKAGE_ROOT):
+        dirs.sort()
+        out += [os.path.relpath(os.path.join(folder, name), PACKAGE_ROOT)
+                for name in sorted(files) if name.endswith(".py")]
+    return out
+
+
 @functools.lru_cache(maxsize=1)
 def _source_hash() -> str:
     h = hashlib.sha256()
-    root = os.path.dirname(os.path.abspath(__file__))
-    for folder, dirs, files in os.walk(root):
-        dirs.sort()
-        for name in sorted(files):
-            if name.endswith(".py"):
-                path = os.path.join(folder, name)
-                h.update(os.path.relpath(path, root).encode())
-                with open(path, "rb") as f:
-                    h.update(f.read())
+    for rel in source_files():
+        h.update(rel.encode())
+        with open(os.path.join(PACKAGE_ROOT, rel), "rb") as f:
+            h.update(f.read())
     return h.hexdigest()
 
 

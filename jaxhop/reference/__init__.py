@@ -36,6 +36,8 @@ from ._plan import Plan as Plan
 from ._plan import build_plan as build_plan
 from ._plan import deploy as deploy
 from ._plan import depth_key as depth_key
+from ._plan import goal_policies as goal_policies
+from ._plan import instantiate as instantiate
 from ._plan import prepares_and_robustness as prepares_and_robustness
 from ._plan import robust_key as robust_key
 from ._plan import safety_key as safety_key
