@@ -123,7 +123,7 @@ def test_planner_jumps_pass_checker():
     rng = np.random.default_rng(1)
     arrays = [jnp.asarray(a) for a in (env.front, env.back, env.height)]
     n_ok = 0
-    pair = jax.jit(lambda a, b, c_, d: min_time_jump(ROBOT, a, b, c_, d, *arrays, MV))
+    pair = jax.jit(lambda a, b, c_, d: min_time_jump(ROBOT, (a, b), (c_, d), arrays, MV))
     for _ in range(150):
         x0 = float(rng.uniform(0.0, 1.6))
         x1 = x0 + float(rng.uniform(0.1, 1.0))
