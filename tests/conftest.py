@@ -29,3 +29,9 @@ os.environ.setdefault("JAXHOP_CACHE", _test_cache())
 # session's compiled programs.
 os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", os.path.join(os.environ["JAXHOP_CACHE"],
                                                                 "xla"))
+
+# Start JAX's backend now, with its default devices: a test that calls the command line's
+# `main` in this process first would otherwise expose every core as a device for the rest
+# of the worker (`jaxhop sweep` does, before its first computation), and every later test
+# would compile its programs once per device.
+jax.devices()
