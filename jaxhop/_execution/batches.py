@@ -65,10 +65,10 @@ def run_batch(plan: Plan, apex0, settings: RunSettings | None = None, *, key=Non
     chunking or the number of devices. Apex values can differ in the last bits (about
     1e-14), because XLA may vectorise another batch shape differently.
 
-    With `checkpoint` (a directory), each finished chunk is written there atomically under a
-    fingerprint of everything the results depend on; a rerun with the same inputs loads the
-    finished chunks and computes only the rest, so an interrupted sweep loses at most the
-    chunks in flight.
+    With `execution.checkpoint` (a directory), each finished chunk is written there
+    atomically under a fingerprint of everything the results depend on; a rerun with the
+    same inputs loads the finished chunks and computes only the rest, so an interrupted
+    sweep loses at most the chunks in flight.
 
     With `execution.pool` (the default for SLIP), the runs go through a pool of
     `pool_lanes()` lanes per device instead, refilled between strides (`pool.py`): no run
@@ -96,12 +96,12 @@ def run_batch(plan: Plan, apex0, settings: RunSettings | None = None, *, key=Non
     store = None
     if checkpoint is not None:
         store = ChunkStore(checkpoint, fingerprint(plan, apex0, key, true_terrain,
-                                                     disturbance, config, chunk))
+                                                    disturbance, config, chunk))
     pending = []
     consts = (*bucketed(tables, true_terrain), plan.hopper, disturbance, config)
     mine = process_chunks(-(-n // chunk))
     if model.pooled if execution.pool is None else execution.pool:
-        return _run_pool(apex0, key, consts, (n, chunk, mine, store), execution)
+        return _run_pool(apex0, key, consts, n, chunk, mine, store, execution)
     on_device = {}  # the plan's tables are large: copy them to each device once, not per chunk
     for i, start in enumerate(range(0, n, chunk)):
         if i not in mine:
@@ -174,10 +174,9 @@ def _combine(parts: dict, spans: list, n: int, template) -> dict:
     return {k: every[k][owner, np.arange(n)] for k in RUN_FIELDS}
 
 
-def _run_pool(apex0, key, consts, chunks, execution: ExecSettings):
-    """`run_batch` for SLIP: chunks (`(n, chunk, mine, store)`: checkpointing,
-    `jax.distributed` shares) as there, the runs themselves through `pool_runs`."""
-    n, chunk, mine, store = chunks
+def _run_pool(apex0, key, consts, n, chunk, mine, store, execution: ExecSettings):
+    """`run_batch` for SLIP: chunks (checkpointing, `jax.distributed` shares) as there, the
+    runs themselves through `pool_runs`."""
     config = consts[-1]
     spans = [(start, min(start + chunk, n)) for i, start in enumerate(range(0, n, chunk))
              if i in mine]

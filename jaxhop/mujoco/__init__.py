@@ -4,8 +4,8 @@ Model: `Mechanics` (leg and foot masses, friction, servoes, contact), `IDEAL` (t
 idealisation), `hopper_xml` (the MJCF of a hopper over a terrain). Simulation:
 `Simulator` (one stride at a time). Closed-loop runs under jaxhop's reactive controller:
 `Controller`, `run_many` (over processes) and `run_recorded` (one run with its
-trajectory) with `Job` / `job_for`,
-`summarize_runs`. `docs/mujoco.md` describes the model and its decisions.
+trajectory), with `Job` / `job_for` and `summarize_runs`. `docs/mujoco.md` describes the
+model and its decisions.
 """
 
 from .._core.errors import InputError as _InputError
