@@ -195,7 +195,7 @@ def bench_bhop_sweep(jp, quick: bool):
 
 def bench_decision(jp):
     tables, hopper = jp.tables(), Hopper()
-    fn = jax.jit(decide)
+    fn = jaxhop.jit(decide)
     apex = jnp.asarray([4.0, 1.45, 0.5])
     t0 = time.perf_counter()
     jax.block_until_ready(fn(apex, tables, hopper))
@@ -287,7 +287,7 @@ def slip_targets(n):
     from jaxhop.slip import slip_apex_map
 
     apex, u = random_slip_strides(1, 2 * n)
-    goal, code = jax.jit(jax.vmap(slip_apex_map, (0, 0, None, None)))(
+    goal, code = jaxhop.jit(jax.vmap(slip_apex_map, (0, 0, None, None)))(
         jnp.asarray(apex), jnp.asarray(u), 0.0, Hopper())
     keep = np.nonzero(np.asarray(code) == 0)[0][:n]
     return apex[keep], np.asarray(goal)[keep]
@@ -298,7 +298,7 @@ def within_1mm(apex, goal, u):
     simulation's tolerance)."""
     from jaxhop.slip import slip_apex_map
 
-    nxt, code = jax.jit(jax.vmap(slip_apex_map, (0, 0, None, None)))(
+    nxt, code = jaxhop.jit(jax.vmap(slip_apex_map, (0, 0, None, None)))(
         jnp.asarray(apex), jnp.asarray(u), 0.0, Hopper())
     err = np.max(np.abs(np.asarray(nxt) - goal), axis=1)
     return (np.asarray(code) == 0) & (err <= 1e-3)
@@ -315,7 +315,7 @@ def bench_slip_deadbeat(quick: bool):
         lambda: deadbeat_slips(apex, goal, 0.0, hopper, table), 1 if quick else 2)
     hit = within_1mm(apex, goal, ju)
     # The multi-start solver alone (no table), split over the devices as deadbeat_slips is.
-    multi = jax.jit(jax.vmap(lambda a, g: deadbeat_slip(a, g, 0.0, hopper)))
+    multi = jaxhop.jit(jax.vmap(lambda a, g: deadbeat_slip(a, g, 0.0, hopper)))
     share = -(-n // len(jax.local_devices()))
     m_first, m_warm, (mu, _) = timed(lambda: chunked_map(multi, n, share, (apex, goal)), 1)
     m_hit = within_1mm(apex, goal, np.asarray(mu))
@@ -354,7 +354,7 @@ def bench_slip_decision(jp):
 
     tables = jp.tables(slip=True)
     hopper = Hopper()
-    fn = jax.jit(lambda a: decide_slip(a, tables, hopper))
+    fn = jaxhop.jit(lambda a: decide_slip(a, tables, hopper))
     grid = sweep_grid(jp.terrain)
     initial = grid[jaxhop.in_global_domain(grid, jp.tables(), hopper)]
     states = initial[np.linspace(0, initial.shape[0] - 1, 64).round().astype(int)]

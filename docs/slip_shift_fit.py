@@ -26,7 +26,7 @@ jax.config.update("jax_enable_x64", True)
 import jax.numpy as jnp  # noqa: E402
 from scipy.optimize import least_squares  # noqa: E402
 
-from jaxhop import Hopper  # noqa: E402
+from jaxhop import Hopper, jit  # noqa: E402
 from jaxhop.slip import flat_touchdown, slip_apex_map  # noqa: E402
 
 
@@ -42,7 +42,7 @@ def sample(n: int, seed: int, hopper: Hopper):
     kd = kc * np.exp(rng.uniform(np.log(0.5), np.log(2.0), k))
     apex = jnp.stack([jnp.zeros(k), jnp.asarray(zr + hopper.rho0), jnp.asarray(ydot)], 1)
     u = jnp.stack([jnp.asarray(th), jnp.asarray(kc), jnp.asarray(kd)], 1)
-    nxt, code = jax.jit(jax.vmap(lambda a, c: slip_apex_map(a, c, 0.0, hopper)))(apex, u)
+    nxt, code = jit(jax.vmap(lambda a, c: slip_apex_map(a, c, 0.0, hopper)))(apex, u)
     y_foot = jax.vmap(lambda a, t: flat_touchdown(a, t, 0.0, hopper)[0])(apex, u[:, 0])
     nxt, code, y_foot = np.asarray(nxt), np.asarray(code), np.asarray(y_foot)
     zr1 = nxt[:, 1] - hopper.rho0

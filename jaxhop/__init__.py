@@ -15,6 +15,10 @@ Importing jaxhop sets three things, because every number it computes depends on 
 - JAX's compilation cache directory, unless one is set already: `$JAXHOP_CACHE/xla`
   (default `~/.cache/jaxhop/xla`), so a second process loads compiled programs instead of
   compiling them again.
+
+Its programs compile with `COMPILER_OPTIONS` (`jaxhop.jit`: `jax.jit` with them), which
+spare the SLIP model's nested solver loops most of their compilation time
+(`docs/development.md`, "Compilation").
 """
 
 import os as _os
@@ -41,6 +45,8 @@ from ._core.params import Disturbance as Disturbance
 from ._core.params import Hopper as Hopper
 from ._core.params import disturbance_for as disturbance_for
 from ._core.paths import cache_dir as cache_dir
+from ._core.programs import COMPILER_OPTIONS as COMPILER_OPTIONS
+from ._core.programs import jit as jit
 from ._core.result import RESULT_NAMES as RESULT_NAMES
 from ._core.result import Result as Result
 from ._core.terrain import SEGMENT_LENGTH as SEGMENT_LENGTH

@@ -180,7 +180,7 @@ th = np.linspace(-0.05, 0.3, N)
 kc = 20_000.0  # N/m
 same = np.stack([th, np.full(N, kc), np.full(N, kc)], 1)
 stiffer = np.stack([th, np.full(N, kc), np.full(N, 1.3 * kc)], 1)
-stride_batch = jax.jit(jax.vmap(jaxhop.slip_apex_map, (None, 0, None, None)))
+stride_batch = jaxhop.jit(jax.vmap(jaxhop.slip_apex_map, (None, 0, None, None)))
 next_same, code_same = stride_batch(apex, same, 0.0, hopper)
 next_stiff, code_stiff = stride_batch(apex, stiffer, 0.0, hopper)
 
@@ -223,7 +223,7 @@ derivatives through the diffrax solve. We ask for `N` target apexes ahead of the
 and check the result with the simulated stride."""),
     ("code", '''s = np.linspace(0.0, 1.0, N)
 targets = np.stack([0.55 + 0.35 * s, 1.25 + 0.1 * s, 0.7 + 0.6 * s], 1)
-deadbeat = jax.jit(jax.vmap(jaxhop.deadbeat_slip, (None, 0, None, None)))
+deadbeat = jaxhop.jit(jax.vmap(jaxhop.deadbeat_slip, (None, 0, None, None)))
 u, solved = deadbeat(apex, jnp.asarray(targets), 0.0, hopper)
 reached, code = stride_batch(apex, u, 0.0, hopper)
 err = np.abs(np.asarray(reached) - targets).max(axis=1)

@@ -30,6 +30,14 @@ os.environ.setdefault("JAXHOP_CACHE", _test_cache())
 os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", os.path.join(os.environ["JAXHOP_CACHE"],
                                                                 "xla"))
 
+# The tests' own programs (and eager calls) compile as jaxhop's do (`jaxhop.COMPILER_OPTIONS`),
+# the processes they start included.
+import jaxhop  # noqa: E402 - after the cache directories above
+
+_flags = os.environ.get("XLA_FLAGS", "").split()
+os.environ["XLA_FLAGS"] = " ".join(_flags + [
+    f"--{k}={v}" for k, v in jaxhop.COMPILER_OPTIONS.items() if f"--{k}={v}" not in _flags])
+
 # Start JAX's backend now, with its default devices: a test that calls the command line's
 # `main` in this process first would otherwise expose every core as a device for the rest
 # of the worker (`jaxhop sweep` does, before its first computation), and every later test

@@ -332,10 +332,12 @@ def test_a_slip_miss_that_stays_put_is_decided_again():
 
     _, _, chosen, recovered = decide_slip(apex, tables, HOPPER, recover=True)
     assert int(chosen) != int(inst) and bool(recovered)
+    # The default stride limit, so that the run shares the compiled pool step of the other
+    # runs on this map.
     out = run_batch(plan, np.asarray(apex)[None],
-                    jaxhop.RunSettings(model="slip", controller="adaptive", max_steps=12),
+                    jaxhop.RunSettings(model="slip", controller="adaptive"),
                     key=jax.random.key(0), true_terrain=true)
-    assert out["code"][0] == 0, (out["code"], out["steps"])
+    assert out["code"][0] == 0 and out["steps"][0] <= 12, (out["code"], out["steps"])
 
 
 @pytest.fixture(scope="module")

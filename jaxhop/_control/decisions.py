@@ -14,9 +14,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._core.batching import run_once
 from .._core.errors import InputError
 from .._core.params import REFERENCE_HOPPER, Hopper
+from .._core.programs import jit
 from .._core.terrain import Terrain
 from .._models.bhop import ascent, deadbeat_bhop, safe_sqrt, stance
 from .._models.flight import COLLISION, OK, liftoff_clear, touchdown
@@ -156,7 +156,7 @@ def _in_domain(apexes, tables: PlanTables, hopper: Hopper):
     return jax.vmap(lambda z: first_match(z, tables, hopper)[0])(apexes)
 
 
-_in_domain_jit = jax.jit(_in_domain)
+_in_domain_jit = jit(_in_domain)
 
 
 def in_global_domain(apexes, tables: PlanTables, hopper: Hopper) -> np.ndarray:
@@ -322,11 +322,24 @@ def decide_slip(apex, tables: PlanTables, hopper: Hopper, n_candidates: int = SL
         away = jnp.max(jnp.abs(apex - goals[pick]) / scale) <= miss[pick]
         stuck = (~jnp.any(good) & jnp.isfinite(miss[pick]) & found_next
                  & (sit_next == sit[pick]) & away)
-        return (valid[0], u[pick], inst[pick], recovered), sit[pick], stuck
+        return ((valid[0], u[pick], inst[pick].astype(jnp.int32), recovered),
+                sit[pick].astype(jnp.int32), stuck)
 
-    first, sit, stuck = choose(apex, None)
-    # The second decision runs only where the first one is stuck (`run_once`).
-    again = run_once(stuck, lambda zero: choose(apex + zero, lambda ids: ids == sit)[0], first)
+    # Both decisions are turns of one loop, so the decision (its deadbeat's nested solves)
+    # is traced and compiled once: the second turn runs only where the first one is stuck
+    # (under `vmap`, only in a batch where some lane is) and leaves out the first's policy.
+    def turn(carry):
+        k, _, stuck, sit, first, _ = carry
+        again = k > 0
+        out, sit_k, stuck_k = choose(apex, lambda ids: again & (ids == sit))
+        keep = lambda a, b: jax.tree.map(lambda x, y: jnp.where(again, x, y), a, b)  # noqa: E731
+        return (k + 1, ~again & stuck_k, keep(stuck, stuck_k), keep(sit, sit_k),
+                keep(first, out), out)
+
+    no, zero = jnp.asarray(False), jnp.asarray(0, jnp.int32)
+    blank = (no, jnp.zeros(3, jnp.result_type(float)), zero, no)
+    carry = (zero, jnp.asarray(True), no, zero, blank, blank)
+    _, _, stuck, _, first, again = jax.lax.while_loop(lambda c: c[1], turn, carry)
     # Where no other policy is left, `again` found nothing and the first decision stands.
     use = stuck & again[0] & (recover_again | ~again[3])
     out = jax.tree.map(lambda a, b: jnp.where(use, a, b), again, first)

@@ -24,6 +24,7 @@ import jax.numpy as jnp
 
 from .._core.errors import InputError
 from .._core.params import Disturbance, Hopper
+from .._core.programs import jit
 from .._core.result import Result
 from .._core.terrain import Terrain
 from .._models.slip.kernels import mirrored_rise_time
@@ -363,4 +364,4 @@ def run_chunk(apex0, key, index, tables, true_terrain, hopper, disturbance, conf
         apex0, keys, tables, true_terrain, hopper, disturbance, config)
 
 
-batch_jit = jax.jit(run_chunk)
+batch_jit = jit(run_chunk)

@@ -2,7 +2,8 @@
 
 JAX's persistent compilation cache spares a second process the compilation, but not the
 tracing and lowering that produce the cache key: for the SLIP lane pool's step (a SLIP
-decision with its nested diffrax solves) that is about 20 s of Python on every start. The
+decision with its nested diffrax solves) that is about a minute of Python on every start
+(60-65 s traced and 6 s lowered on the 2-core CPU, jax 0.10.2). The
 pool step is therefore exported once (`jax.export`, StableHLO) and saved beside JAX's
 compilation cache, in `<compilation cache dir>/jaxhop-programs`; a later process loads it
 in milliseconds, and JAX's cache then supplies the compiled executable.
@@ -17,6 +18,14 @@ reported and replaced; a program that cannot be exported runs traced, as plain `
 
 `stored_array` keeps a computed array the same way, under a SHA-256 that also covers the
 values of its inputs and the number of devices (a run's last bits depend on its lanes).
+
+Every jaxhop program compiles with `COMPILER_OPTIONS` (`jit`): XLA's while-loop invariant
+code motion computes the trip count of each loop it visits by extracting and cloning the
+loop's computation, at every turn of its simplification fix point. A SLIP decision nests
+diffrax's step loops in event root finds, Gauss-Newton turns, table starts and candidates
+inside the run loop, and that pass alone took three quarters of the lane pool step's
+compilation: 341 s, against 56 s without it (2-core CPU, jax 0.10.2), while a warm pool
+run of 128 reference states took 2.2 s either way (same outcomes; apexes within 2e-7).
 """
 
 from __future__ import annotations
@@ -40,6 +49,15 @@ _LIBS = ("jax", "jaxlib", "diffrax", "equinox", "optimistix", "lineax", "numpy")
 # the export error on another backend).
 _KNOWN_CALLS = ("lapack_dgeqrf_ffi", "lapack_dorgqr_ffi", "lapack_dormqr_ffi",
                 "lapack_dgetrf_ffi", "lapack_dtrsm_ffi", "lapack_dpotrf_ffi")
+
+
+#: XLA debug options every jaxhop program is compiled with (see above).
+COMPILER_OPTIONS = {"xla_disable_hlo_passes": "while-loop-invariant-code-motion"}
+
+
+def jit(fn, **kwargs):
+    """`jax.jit(fn, **kwargs)` compiled with `COMPILER_OPTIONS`."""
+    return jax.jit(fn, compiler_options=COMPILER_OPTIONS, **kwargs)
 
 
 PACKAGE_ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))  # jaxhop/
@@ -133,17 +151,17 @@ def _load_or_export(name, key, flat, leaves, log):
         if os.path.exists(path):
             try:
                 with open(path, "rb") as f:
-                    return jax.jit(jex.deserialize(bytearray(f.read())).call)
+                    return jit(jex.deserialize(bytearray(f.read())).call)
             except Exception as err:  # noqa: BLE001 - any unreadable file is re-exported
                 report(f"program {path}: unreadable ({type(err).__name__}); re-exporting")
     try:
         exported = _export(flat, leaves)
         blob = exported.serialize()
     except Exception:  # noqa: BLE001 - no export (e.g. no flatbuffers): trace as usual
-        return jax.jit(flat)
+        return jit(flat)
     if path is not None:
         _save(path, lambda f: f.write(blob), report)
-    return jax.jit(exported.call)
+    return jit(exported.call)
 
 
 def _save(path: str, write, report) -> None:

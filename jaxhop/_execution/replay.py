@@ -16,6 +16,7 @@ import numpy as np
 from .._control.decisions import clip_to_template, decide
 from .._control.runloop import RunConfig, World, final_code, step
 from .._core.params import Disturbance
+from .._core.programs import jit
 from .._core.result import Result
 from .._core.terrain import Terrain
 from .._models.bhop import deadbeat_bhop
@@ -58,7 +59,7 @@ def nominal_controls(plan: Plan, run: dict) -> np.ndarray:
     if steps == 0:
         return np.zeros((0, 3))
     apexes = jnp.asarray(np.asarray(run["apexes"])[:steps], float)
-    decide_all = jax.jit(jax.vmap(decide, (0, None, None)))
+    decide_all = jit(jax.vmap(decide, (0, None, None)))
     found, u, a = decide_all(apexes, plan.tables(), plan.hopper)
     return np.asarray(u)
 
@@ -75,7 +76,7 @@ def _schedule(plan: Plan, run: dict, mode: str):
                       jnp.asarray(heights), jnp.asarray(situated % nt), plan.templates)
 
 
-_step_jit = jax.jit(step)
+_step_jit = jit(step)
 
 
 def open_loop_replay(plan: Plan, run: dict, *, disturbance=None, key=None,

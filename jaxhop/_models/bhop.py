@@ -4,10 +4,10 @@ Every function here handles one apex state; batching is added with `jax.vmap` by
 Controls are `u = (dy, th, k)`: horizontal shift in stance, touchdown angle, velocity gain.
 """
 
-import jax
 import jax.numpy as jnp
 
 from .._core.params import Hopper
+from .._core.programs import jit
 
 
 def safe_sqrt(x):
@@ -102,5 +102,5 @@ def clip_controls(u, lo, hi):
     return jnp.clip(u, lo, hi)
 
 
-bhop_apex_map_jit = jax.jit(bhop_apex_map)
-deadbeat_bhop_jit = jax.jit(deadbeat_bhop)
+bhop_apex_map_jit = jit(bhop_apex_map)
+deadbeat_bhop_jit = jit(deadbeat_bhop)

@@ -17,6 +17,7 @@ import numpy as np
 
 from .._core.batching import chunked_map
 from .._core.params import Hopper
+from .._core.programs import jit
 from .._core.terrain import Terrain
 from .policies import (
     candidate_situated,
@@ -80,12 +81,12 @@ def _held(points, allowed, table, templates, terrain, hopper):
     return jax.vmap(held)(points)
 
 
-screen_jit = jax.jit(_screen, static_argnames=("grid",))
-pairs_jit = jax.jit(_pairs, static_argnames=("grid",))
-rows_jit = jax.jit(_rows)
-goal_jit = jax.jit(_goal_policies)
-robustness_jit = jax.jit(_robustness)
-held_jit = jax.jit(_held)
+screen_jit = jit(_screen, static_argnames=("grid",))
+pairs_jit = jit(_pairs, static_argnames=("grid",))
+rows_jit = jit(_rows)
+goal_jit = jit(_goal_policies)
+robustness_jit = jit(_robustness)
+held_jit = jit(_held)
 
 
 # --- situate ------------------------------------------------------------------------------

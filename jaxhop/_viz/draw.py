@@ -9,6 +9,7 @@ import numpy as np
 
 from .._control.decisions import model_for
 from .._core.params import Hopper
+from .._core.programs import jit
 from .._core.terrain import Terrain
 from .._planning.plan import Plan
 
@@ -196,7 +197,7 @@ def policy_cross_sections(plan: Plan, policies, apexes, n: int = 40):
 
         return jax.vmap(one)(t, v_d, v_g)
 
-    d_b, g_b = (np.asarray(x) for x in jax.jit(bounds)(
+    d_b, g_b = (np.asarray(x) for x in jit(bounds)(
         jnp.asarray(t_idx), jnp.asarray(apexes[:, 2]), jnp.asarray(goals[:, 2]), tmpls, hop))
     dy_lo, dy_hi = np.asarray(tmpls.dy_lo)[t_idx], np.asarray(tmpls.dy_hi)[t_idx]
     rho0, g = float(hop.rho0), float(hop.g)

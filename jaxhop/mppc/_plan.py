@@ -19,6 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._core.batching import bucket
+from .._core.programs import jit
 from ._course import Course, Environment
 from ._jump import min_time_jump_tan
 from ._polish import polish_path
@@ -155,10 +156,10 @@ def _band_table(robot, x, z, valid, front, back, height, margin_v, width: int, n
     return ok & pair_ok, t, v, th
 
 
-_band_table_jit = jax.jit(_band_table, static_argnames=("robot", "width", "n_local"))
+_band_table_jit = jit(_band_table, static_argnames=("robot", "width", "n_local"))
 
 
-@partial(jax.jit, static_argnames=("robot", "width", "n_local"))
+@partial(jit, static_argnames=("robot", "width", "n_local"))
 def _horizon_solve(robot, x, z, valid, front, back, height, margin_v, width: int,
                    n_local: int, wind=None, room=None):
     # The pair table, then best[n - 1, j]: least total flight time of n jumps from point 0
@@ -180,7 +181,7 @@ def _horizon_solve(robot, x, z, valid, front, back, height, margin_v, width: int
     return cost, v, tan, jnp.stack(bests)
 
 
-@jax.jit
+@jit
 def _backward_reach(ok, last):
     # Points from which `last` can be reached over the band of feasible jumps `ok`:
     # propagate backwards, one jump per sweep, until nothing changes.

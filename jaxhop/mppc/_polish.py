@@ -23,6 +23,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._core.programs import jit
 from ._jump import min_time_jump_tan
 
 K = 9  # offsets per point and sweep
@@ -60,7 +61,7 @@ def _pair(robot, obs, margin_v, wind, room):
     return jax.vmap(one)
 
 
-@partial(jax.jit, static_argnames=("robot",))
+@partial(jit, static_argnames=("robot",))
 def _polish(robot, x, z, lo, hi, n, front, back, height, margin_v, half, wind=None,
             room=None):
     # x, z: the path's points padded to N_CAP + 1; n: its number of jumps (traced).

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._core.params import Disturbance
+from .._core.programs import jit
 from .._core.result import Result
 from .._core.terrain import Terrain
 from ._model import DEFAULT, Mechanics
@@ -55,16 +56,15 @@ class Controller:
     """
 
     def __init__(self, plan, controller: str = "adaptive"):
-        import jax
 
         from .._control.decisions import SLIP
         from .._control.runloop import check_controller
 
         self.plan, self.tables, self.hopper = plan, plan.tables(), plan.hopper
         self.adaptive = check_controller(controller) == "adaptive"
-        self._decide = jax.jit(self._decision)
-        self._remember = jax.jit(_remember)
-        self._noise = jax.jit(_noise)
+        self._decide = jit(self._decision)
+        self._remember = jit(_remember)
+        self._noise = jit(_noise)
         self._model = SLIP
 
     def _decision(self, measured, footholds, tables, hopper):

@@ -32,6 +32,7 @@ from .._control.decisions import decide, in_global_domain, model_for
 from .._control.runloop import Control, RunConfig, World, control_init, final_code, step
 from .._core.batching import bucket, pad_terrain, pad_to
 from .._core.params import NOISE_KINDS, Hopper, check_noise, disturbance_for
+from .._core.programs import jit
 from .._core.result import Result
 from .._planning.plan import PlanTables
 from .._planning.policies import PairGrid
@@ -197,7 +198,7 @@ def _step_one(apex, code, key, k, tables, true_terrain, forb, goal, tol, dist, h
                         _course_config(goal, tol, model, controller=controller), control)
 
 
-_step_vmap = jax.jit(jax.vmap(_step_one, (0, 0, 0, None, None, None, None, None, None, None,
+_step_vmap = jit(jax.vmap(_step_one, (0, 0, 0, None, None, None, None, None, None, None,
                                           None, None, 0, None)),
                      static_argnames=("model", "controller"))
 
@@ -212,7 +213,7 @@ def _step_batch(apex, code, keys, k, tables, true_terrain, forb, goal, tol, dist
                       model, control, controller)
 
 
-_decide_jit = jax.jit(decide, static_argnames=("model",))
+_decide_jit = jit(decide, static_argnames=("model",))
 
 
 @dataclasses.dataclass

@@ -24,6 +24,7 @@ import optimistix as optx
 
 from ..._core.batching import chunked_map
 from ..._core.params import Hopper
+from ..._core.programs import jit
 from ..._core.terrain import Terrain
 from ..bhop import safe_sqrt
 from ..flight import COLLISION, OK, SOLVER, flight_crossings, flight_position, touchdown
@@ -308,8 +309,8 @@ def slip_stride(apex, u, terrain: Terrain, hopper: Hopper, wind=0.0,
     return nxt, code, foot
 
 
-slip_stride_jit = jax.jit(slip_stride)
-slip_apex_map_jit = jax.jit(slip_apex_map)
+slip_stride_jit = jit(slip_stride)
+slip_apex_map_jit = jit(slip_apex_map)
 
 
 _STRIDE_CHUNK = 512
@@ -336,4 +337,4 @@ def slip_strides(apex, u, terrain: Terrain, hopper: Hopper, wind=0.0,
                        (terrain, hopper, wind, tol))
 
 
-_strides_jit = jax.jit(jax.vmap(slip_stride, (0, 0, None, None, None, None)))
+_strides_jit = jit(jax.vmap(slip_stride, (0, 0, None, None, None, None)))

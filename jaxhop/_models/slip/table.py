@@ -37,6 +37,7 @@ import numpy as np
 from ..._core.batching import pow2_at_least, run_once
 from ..._core.params import Hopper
 from ..._core.paths import atomic_write, cache_dir
+from ..._core.programs import jit
 from ..._core.version import VERSION
 from .kernels import (
     KAPPA_HI,
@@ -107,7 +108,7 @@ def build_table(grid: TableGrid = DEFAULT_GRID, chunk: int = 4096,
 
     axes = grid.axes()
     mesh = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 5)
-    fn = jax.jit(jax.vmap(lambda x: _entry(*x, SEARCH_TOL)))
+    fn = jit(jax.vmap(lambda x: _entry(*x, SEARCH_TOL)))
     with Progress(mesh.shape[0], "SLIP table", "strides", enabled=progress) as bar:
         out = chunked_map(fn, mesh.shape[0], chunk, (mesh,), bar=bar)
     return np.asarray(out).reshape(*(a.size for a in axes), 2)
@@ -396,10 +397,10 @@ def _pass_fn():
                                             first=first, last=last)
         return th, kc, c2, stage
 
-    return jax.jit(jax.vmap(one, (0, 0, 0, None, None, None, None)))
+    return jit(jax.vmap(one, (0, 0, 0, None, None, None, None)))
 
 
-_controls_batch = jax.jit(jax.vmap(lambda a, g, h, th, kc, hopper: clipped_controls(
+_controls_batch = jit(jax.vmap(lambda a, g, h, th, kc, hopper: clipped_controls(
     a, g, h, th, kc, hopper, SEARCH_TOL), (0, 0, 0, 0, 0, None)))
 
 
