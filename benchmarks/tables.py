@@ -305,43 +305,46 @@ def updates() -> list[str]:
 
 
 def gpu() -> list[str]:
-    h100, h200 = load("h100-slip-sweep-2026-11.json"), load("h200-slip-sweep-2026-11.json")
-    rows = []
-    for label, plan, observer, runs in (
-            ("H100", "direction rule", "with the filter's covariance", h100["runs"]),
-            ("H200", "no direction rule", "with the filter's covariance", h200["runs"]),
-            ("H200", "no direction rule", "without the filter's covariance",
-             h200["runs_without_apex_filter"])):
-        for lanes in dict.fromkeys(r["lanes"] for r in runs):
-            mine = [r for r in runs if r["lanes"] == lanes]
-            first = [r for r in mine if r["process"].startswith("first")]
-            warm = [r for r in mine if not r["process"].startswith("first")]
+    h100 = load("h100-slip-sweep-2026-11.json")
+    runs = h100["runs"]
+    first = [r for r in runs if r["process"].startswith("first")]
+    warm = [r for r in runs if not r["process"].startswith("first")]
 
-            def timed(r):
-                wall = f" ({r['wall_s']:.1f} wall)" if "wall_s" in r else ""
-                return f"{r['sweep_s']:.1f}{wall}"
+    def timed(r):
+        wall = f" ({r['wall_s']:.1f} wall)" if "wall_s" in r else ""
+        return f"{r['sweep_s']:.1f}{wall}"
 
-            rows.append([label, plan, observer, lanes,
-                         "; ".join(f"{r['n']} runs: {timed(r)}" for r in first),
-                         ", ".join(timed(r) for r in warm),
-                         " / ".join(f"{r['pool_s']:.1f}" for r in first + warm)])
-    lines = ["### The SLIP sweep on a GPU",
-             f"`{h100['command']}`, the plan and the SLIP start table cached, each run a "
-             "fresh process, one JAX device, decisions' trial strides at rtol = atol = 1e-8; "
-             "the first process traces and compiles, the others load the compiled programs "
-             "from the persistent cache. The observer carries the apex filter's covariance, "
-             "or not (those H200 rows on another machine of the same kind)."]
-    for label, data, name in (("H100", h100, "h100"), ("H200", h200, "h200")):
-        s = data["summary"]
-        same = data["same_json_second_and_third"] and data["same_json_as_cpu2"]
-        lines.append(f"- {label} (`results/{name}-slip-sweep-2026-11.json`): {data['device']}; "
-                     f"{data['software']}. {s['n_initial_conditions']} runs, success "
-                     f"{rate(s['success_rate'])}, {s['mean_steps']:.2f} strides (mean), longest "
-                     f"{s['max_steps']}; "
-                     + ("the warm runs' JSON equal each other's and the 2-core CPU's."
-                        if same else "the JSON differs between runs."))
-    return lines + [""] + table(["GPU", "plan", "observer", "lanes", "first process (s)",
-                                 "warm processes (s)", "of which the lane pool (s)"], rows)
+    s = h100["summary"]
+    same = h100["same_json_second_and_third"] and h100["same_json_as_cpu2"]
+    name = "h200-gpu-2026-11.json"
+    bench = load(name)
+    rows = [["plan build, BHop, `reference`", seconds(bench["plan_build_s"]["gpu"][1]),
+             seconds(bench["plan_build_s"]["cpu2"][1]),
+             ratio(bench["plan_build_s"]["cpu2"][1] / bench["plan_build_s"]["gpu"][1]),
+             f"{bench['plan_build_s']['gpu'][0]:.1f} / {bench['plan_build_s']['cpu2'][0]:.1f}",
+             ""]]
+    for model, label in (("bhop", "BHop sweep"), ("slip", "SLIP model on the BHop plan")):
+        m = bench["sweeps"][model]
+        rows.append([f"{label} ({m['summary_gpu']['n_initial_conditions']} runs, success "
+                     f"{rate(m['summary_gpu']['success_rate'])})",
+                     seconds(m["gpu"]["warm_s"]), seconds(m["cpu2"]["warm_s"]),
+                     ratio(m["speedup_warm"]),
+                     f"{m['gpu']['cold_s']:.1f} / {m['cpu2']['cold_s']:.1f}",
+                     "yes" if m["same_outcomes"] else "no"])
+    return (["### GPUs",
+             f"`gpu.sh` (`results/{name}`): one {bench['device']} against 2 cores of the same "
+             f"machine's CPU, in one run, jax {bench['host']['jax']}; first calls compile "
+             f"(256 runs for a sweep). {bench['plans']}."]
+            + [""] + table(["", "GPU warm (s)", "2 CPU cores warm (s)", "ratio", "first call (s)",
+                            "same outcomes"], rows)
+            + ["", f"The reference SLIP sweep, `{h100['command']}`, on one {h100['device']} "
+               f"(`results/h100-slip-sweep-2026-11.json`; {h100['software']}), trial strides at "
+               f"rtol = atol = 1e-8, a fresh process each: first process "
+               + "; ".join(f"{r['n']} runs: {timed(r)} s" for r in first)
+               + ", warm " + ", ".join(f"{timed(r)} s" for r in warm)
+               + f". {s['n_initial_conditions']} runs, success {rate(s['success_rate'])}"
+               + ("; the warm runs' JSON equal each other's and the 2-core CPU's."
+                  if same else "; the JSON differs between runs.")])
 
 
 def goals() -> list[str]:

@@ -78,6 +78,7 @@ from ._planning.deploy import deploy as deploy
 from ._planning.graph import prepares_matrix as prepares_matrix
 from ._planning.plan import Plan as Plan
 from ._planning.plan import build_plan as build_plan
+from ._planning.plan import templates_for as templates_for
 from ._planning.policies import PairGrid as PairGrid
 from ._planning.regions import feasible_goal_contains as feasible_goal_contains
 from ._planning.regions import feasible_goal_contains_brute as feasible_goal_contains_brute
