@@ -140,6 +140,51 @@ def test_decision_strides_stay_within_a_tenth_of_a_millimetre_of_solve_ivp():
     assert compared >= 20
 
 
+def test_fixed_shape_stance_of_a_bare_spring_matches_the_closed_form():
+    # Without gravity and rotation the radial motion is harmonic: the bottom lies at
+    # rho0 - v / w_c after a quarter period of kc, and the leg leaves at rho0 with speed
+    # v w_d / w_c. The fixed-shape phases must place both events there.
+    hop = Hopper(g=1e-12)
+    fixed = Tolerances(steps=10)
+
+    def stance(v, kc, ratio):
+        x_b, code_b = compress(0.0, jnp.stack([0.0, -v]), kc, hop, fixed)
+        x_lo, code_lo = decompress(x_b, ratio * kc, hop, fixed)
+        return x_b, x_lo, code_b, code_lo
+
+    v, kc, ratio = np.array([1.0, 2.5, 0.3]), np.array([20.0, 60.0, 12.0]) * MG, np.array(
+        [1.0, 0.5, 2.0])
+    x_b, x_lo, code_b, code_lo = jax.jit(jax.vmap(stance))(v, kc, ratio)
+    wc, wd = np.sqrt(kc / hop.m), np.sqrt(ratio * kc / hop.m)
+    zero = np.zeros(3)
+    assert np.all(code_b == OK) and np.all(code_lo == OK)
+    np.testing.assert_allclose(x_b, np.stack([1.0 - v / wc, zero, zero, zero], 1), atol=1e-7)
+    np.testing.assert_allclose(x_lo, np.stack([zero + 1.0, zero, v * wd / wc, zero], 1),
+                               atol=1e-6)
+
+
+def test_fixed_shape_strides_agree_with_the_exact_stride():
+    # An accelerator's decisions take a fixed number of steps per phase; on 2 000 random
+    # strides (half of them under wind) they end as the 1e-10 stride does, with apexes
+    # within 1e-5 of it (docs/slip.md, "Fixed-shape trial strides").
+    from jaxhop._models.slip.kernels import DECISION_TOL, FIXED_DECISION_TOL, decision_tol
+
+    assert decision_tol("cpu") is DECISION_TOL and decision_tol("gpu") is FIXED_DECISION_TOL
+
+    apex, u = random_strides(21, 2000)
+    wind = np.where(np.arange(2000) % 2 == 0, 0.0, -0.2)
+    runs = jax.vmap(slip_stride, (0, 0, None, None, 0, None))
+    exact = jax.jit(lambda a, v, w: runs(a, v, FLAT, HOP, w, Tolerances())[:2])
+    fixed = jax.jit(lambda a, v, w: runs(a, v, FLAT, HOP, w, FIXED_DECISION_TOL)[:2])
+    assert FIXED_DECISION_TOL.steps > 0
+    ref, ref_code = (np.asarray(x) for x in exact(apex, u, wind))
+    nxt, code = (np.asarray(x) for x in fixed(apex, u, wind))
+    np.testing.assert_array_equal(code, ref_code)
+    ok = code == OK
+    assert ok.sum() >= 1000
+    assert np.abs(nxt - ref)[ok].max() <= 1e-5
+
+
 def test_apex_map_equals_stride_on_flat_ground_and_vmap_equals_loop():
     apex, u = random_strides(2, 4)
     a, c, _ = stride_batch(jnp.asarray(apex), jnp.asarray(u), FLAT, HOP)

@@ -263,8 +263,8 @@ def decide_slip(apex, tables: PlanTables, hopper: Hopper, n_candidates: int = SL
     matching policies, predicts each stride over the policy's foothold height, and takes the
     first in deployment order whose prediction lies within `SLIP_ACCEPT` of its goal; when
     none does, the one with the smallest miss relative to `SLIP_ACCEPT`. The deadbeat's
-    trial strides and the prediction integrate at `DECISION_TOL` (an apex within 5e-5 of
-    the executed 1e-10 stride, far inside `SLIP_ACCEPT`).
+    trial strides and the prediction run at `decision_tol()` (an apex within 6e-5 of the
+    executed 1e-10 stride on a CPU, 1e-5 elsewhere: far inside `SLIP_ACCEPT`).
 
     A chosen miss whose predicted apex lies in the same policy's domain again, no nearer its
     goal, would repeat from there stride after stride (a goal ahead of a hopper standing
@@ -283,14 +283,14 @@ def decide_slip(apex, tables: PlanTables, hopper: Hopper, n_candidates: int = SL
         `(found, u, instantiated)`, and with `recover` whether the apex was recovered.
     """
     from .._models.slip.deadbeat import DeadbeatSearch, deadbeat_slip
-    from .._models.slip.kernels import DECISION_TOL
+    from .._models.slip.kernels import decision_tol
 
     nt = tables.templates.n
     terrain = tables.terrain if heights is None else tables.terrain.with_heights(heights)
     scale, stage_c2 = _slip_scales(hopper)
 
     def one(apex, goal, h_):
-        search = DeadbeatSearch(tol=DECISION_TOL, table=tables.slip, fallback=False,
+        search = DeadbeatSearch(tol=decision_tol(), table=tables.slip, fallback=False,
                                 accept=stage_c2)
         u, _, pred, code = deadbeat_slip(apex, goal, h_, hopper, search, terrain=terrain,
                                          wind=wind, predict=True)

@@ -33,7 +33,6 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-import diffrax
 import jax
 import jax.numpy as jnp
 
@@ -92,9 +91,9 @@ def bhop_terms(obs: Observer, hopper: Hopper):
 def slip_terms(obs: Observer, hopper: Hopper):
     """`bhop_terms` for the SLIP stride: its apex map (with the stance's target energy where
     the stride used one), both derivatives in one forward-mode pass through diffrax."""
-    from .._models.slip.stride import STRIDE_TOL, Tolerances, slip_apex_map
+    from .._models.slip.stride import STRIDE_TOL, slip_apex_map
 
-    tol = Tolerances(STRIDE_TOL.rtol, STRIDE_TOL.atol, diffrax.ForwardMode())
+    tol = STRIDE_TOL.forward()
 
     def f(x):
         nxt, _ = slip_apex_map(x[1:], obs.u, obs.h, hopper, tol, x[0], obs.energy)

@@ -22,6 +22,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
+from .._core.batching import run_once
 from .._core.errors import InputError
 from .._core.params import Disturbance, Hopper
 from .._core.programs import jit
@@ -189,13 +190,19 @@ def _decide_adaptive(measured, true_apex, world: World, config: RunConfig, contr
     on = config.adaptive_on
     dist = world.disturbance
     state = measured
-    if model.observes:
-        obs = model.observe(obs, measured, dist.sensor, world.hopper,
-                            dist.landing if config.landing else 0.0)
-        state = obs.estimate
     heights = corrected_heights(control.footholds, world.tables.terrain)
-    if model.observes and not model.instant_stance:
-        obs = _descent_measurement(obs, measured, true_apex, heights, key, world)
+
+    def observed(zero):
+        new = model.observe(obs, measured + zero, dist.sensor, world.hopper,
+                            dist.landing if config.landing else 0.0)
+        if not model.instant_stance:
+            new = _descent_measurement(new, measured, true_apex, heights, key, world)
+        return new
+
+    if model.observes:
+        # Switched off (the paper's controller), a batch skips the observer's solves.
+        obs = observed(0.0) if on is None else run_once(on, observed, obs)
+        state = obs.estimate
     if on is not None:  # switched off: the paper's controller (map, no wind, no recovery)
         obs = jax.tree.map(lambda new, old: jnp.where(on, new, old), obs, control.observer)
         heights = jnp.where(on, heights, world.tables.terrain.heights)

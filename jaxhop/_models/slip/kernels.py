@@ -29,7 +29,6 @@ Two solvers (`deadbeat.deadbeat_slip` picks one):
 One sample per call; vmap for batches.
 """
 
-import diffrax
 import jax
 import jax.numpy as jnp
 import optax
@@ -55,13 +54,24 @@ from .stride import (
 KAPPA_LO, KAPPA_HI = 10.0, 60.0  # kc rho0 / (m g)
 RATIO_LO, RATIO_HI = KD_RATIO  # kd / kc
 TH_LO, TH_HI = -jnp.pi / 3, jnp.pi / 3
-# Searches run at looser tolerances than the simulated stride (1e-10). Against it, on 2 000
+# Searches run at looser tolerances than the simulated stride (1e-10): against it, on 2 000
 # random strides of the reference hopper, SEARCH_TOL moves an apex by at most 2e-8 m (m/s)
-# and DECISION_TOL by at most 5e-5 (99th percentile 3e-5): a controller's decision, whose
-# prediction is accepted within 5 cm of its goal, polishes on the cheaper strides
-# (docs/slip.md, "Deadbeat").
+# and DECISION_TOL by at most 6e-5: a controller's decision, whose prediction is accepted
+# within 5 cm of its goal, polishes on the cheaper strides (docs/slip.md, "Deadbeat"). On an
+# accelerator a decision runs fixed-shape strides instead (`FIXED_DECISION_TOL`, 10 steps
+# per stance phase, at most 3.4e-6 there; docs/slip.md, "Fixed-shape trial strides").
 SEARCH_TOL = Tolerances(rtol=1e-8, atol=1e-8)
 DECISION_TOL = Tolerances(rtol=1e-5, atol=1e-5)
+FIXED_DECISION_TOL = Tolerances(steps=10)
+
+
+def decision_tol(platform: str | None = None) -> Tolerances:
+    """A decision's trial strides on `platform` (default: JAX's default backend): adaptive
+    (`DECISION_TOL`) on a CPU, where a stride's few adaptive steps cost less than the fixed
+    ones, fixed-shape (`FIXED_DECISION_TOL`) elsewhere, where every turn of a data-dependent
+    loop waits for the host (docs/slip.md, "Fixed-shape trial strides")."""
+    platform = jax.default_backend() if platform is None else platform
+    return DECISION_TOL if platform == "cpu" else FIXED_DECISION_TOL
 # The speed the inner search sees where a trial stance fails (see `trial_stride`).
 FAIL_SPEED = 1e3
 # Weights of C2 (eq 16): position (m) and velocity (m/s) errors weigh the same.
@@ -245,7 +255,7 @@ def deadbeat_gradient(apex, goal, h, hopper, tol, max_iter=16, cost_tol=1e-16,
     `starts`: `(n, 2)` starting points (default `initial_guesses`). Returns `(th_td, kc,
     c2)` of the best end point.
     """
-    tol = Tolerances(tol.rtol, tol.atol, diffrax.ForwardMode())
+    tol = tol.forward()
     sqrt_w = jnp.sqrt(jnp.array([W_POS, W_POS, W_VEL]))
 
     def residual(p):

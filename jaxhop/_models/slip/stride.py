@@ -40,12 +40,28 @@ COLLAPSED = 0.25
 
 
 class Tolerances(eqx.Module):
-    """Integration tolerances and the adjoint of the stance solves (all static)."""
+    """How the stance phases are integrated (all static).
+
+    `steps = 0`: adaptive Tsit5 steps at `rtol`, `atol`, the phase's end located by
+    diffrax's event (`adjoint` for reverse mode). `steps > 0`: a fixed-shape phase
+    (`fixed_phase`) of that many equal Tsit5 steps; `rtol`, `atol` and `adjoint` unused.
+    """
 
     rtol: float = eqx.field(static=True, default=RTOL)
     atol: float = eqx.field(static=True, default=ATOL)
     adjoint: diffrax.AbstractAdjoint = eqx.field(
         static=True, default_factory=diffrax.RecursiveCheckpointAdjoint)
+    steps: int = eqx.field(static=True, default=0)
+
+    @property
+    def accuracy(self) -> float:
+        """The apex error these strides stay within: the larger tolerance, or with fixed
+        steps (at least 10) 1e-5 (`docs/slip.md`, "Fixed-shape trial strides")."""
+        return 1e-5 if self.steps else max(self.rtol, self.atol)
+
+    def forward(self):
+        """These settings with forward-mode differentiation through the adaptive solves."""
+        return Tolerances(self.rtol, self.atol, diffrax.ForwardMode(), self.steps)
 
 
 STRIDE_TOL = Tolerances()
@@ -102,6 +118,9 @@ def _phase(x0, k, hopper: Hopper, cond, tol: Tolerances):
     def end(t, y, args, **kwargs):
         return jnp.maximum(cond(t, y, args), -_fallen(t, y, args))
 
+    if tol.steps:
+        return fixed_phase(x0, k, hopper, end, cond, tol.steps)
+
     event = diffrax.Event(cond_fn=end, root_finder=optx.Newton(rtol=1e-13, atol=1e-13),
                           direction=True)
     sol = diffrax.diffeqsolve(
@@ -116,6 +135,85 @@ def _phase(x0, k, hopper: Hopper, cond, tol: Tolerances):
     ok_solve = diffrax.is_okay(sol.result)
     code = jnp.where(~ok_solve | ~jnp.all(jnp.isfinite(x_end)), SOLVER,
                      jnp.where(fired & ~fell, OK, COLLISION))
+    return x_end, code
+
+
+# The fixed-shape phase spans this multiple of its predicted duration (`phase_time`), at
+# most `SPAN_MAX` half periods of the bare spring, pi sqrt(m / k).
+SPAN = 1.5
+SPAN_MAX = 1.25
+# Newton turns that locate the phase's end on the step's dense output.
+EVENT_NEWTON = 6
+# Unrolled: one straight block of arithmetic per phase, no loop turns to wait for.
+UNROLL = False
+
+
+def phase_time(x0, k, hopper: Hopper, to_bottom: bool):
+    """The duration of a stance phase from `x0` (polar) on the radial motion linearised
+    about `rho0`: a spring of stiffness `k / m + 3 th'^2` (the centrifugal term with the
+    angular momentum kept) about a centre that gravity and that term shift by
+    `a / w^2`, `a = g cos th - rho0 th'^2`. `to_bottom`: until `rho' = 0` (compression),
+    else until `rho = rho0` (decompression from rest at the bottom); a decompression that
+    would not reach `rho0` gets half a period."""
+    rho, th, rhod, thd = x0
+    w2 = k / hopper.m + 3.0 * thd**2
+    w = safe_sqrt(w2)
+    a = hopper.g * jnp.cos(th) - hopper.rho0 * thd**2
+    u0 = rho - hopper.rho0 + a / w2
+    if to_bottom:
+        return (jnp.pi - jnp.arctan2(-rhod / w, u0)) / w
+    ratio = (a / w2) / jnp.where(u0 != 0, u0, -1.0)
+    return jnp.where(jnp.abs(ratio) < 1, jnp.arccos(jnp.clip(ratio, -1, 1)), jnp.pi) / w
+
+
+def fixed_phase(x0, k, hopper: Hopper, end, cond, steps: int):
+    """`_phase` with a fixed shape: `steps` equal Tsit5 steps over `SPAN` times the
+    phase's predicted duration (`phase_time`; a `lax.scan`, no data-dependent loop), then
+    `EVENT_NEWTON` Newton turns on the dense output of the step in which `end` first
+    up-crosses 0. Every lane does the same work, and forward-mode derivatives go through
+    it as through any arithmetic. Returns `(x_end, code)` as `_phase` does; a phase that
+    does not end inside the span is `COLLISION`, as one that never ends."""
+    # The stages in a plain loop: forward-mode derivatives go through it.
+    term, solver, args = diffrax.ODETerm(_field), diffrax.Tsit5(scan_kind="lax"), (k, hopper)
+    span = jnp.minimum(SPAN * phase_time(x0, k, hopper, cond is _bottom),
+                       SPAN_MAX * jnp.pi * safe_sqrt(hopper.m / k))
+    dt = jnp.minimum(span, PHASE_T_MAX) / steps
+
+    def turn(carry, i):
+        y, state, e, found, crossing = carry
+        t0 = i * dt
+        y1, _, dense, state1, _ = solver.step(term, t0, t0 + dt, y, args, state, False)
+        e1 = end(t0 + dt, y1, args)
+        now = ~found & (e < 0) & (e1 >= 0)
+        crossing = jax.tree.map(lambda new, old: jnp.where(now, new, old),
+                                (t0, e, e1, dense), crossing)
+        # After the end the state stays put (a lane past a fall must not reach rho = 0).
+        stop = found | now
+        y, state, e = jax.tree.map(lambda old, new: jnp.where(stop, old, new),
+                                   (y, state, e), (y1, state1, e1))
+        return (y, state, e, stop, crossing), None
+
+    state0 = solver.init(term, 0.0, dt, x0, args)
+    _, _, dense0, _, _ = solver.step(term, 0.0, dt, x0, args, state0, False)
+    e0 = end(0.0, x0, args)
+    crossing0 = (jnp.zeros_like(dt), e0, e0, jax.tree.map(jnp.zeros_like, dense0))
+    (_, _, _, found, (t0, e_a, e_b, dense)), _ = jax.lax.scan(
+        turn, (x0, state0, e0, jnp.asarray(False), crossing0), jnp.arange(steps),
+        unroll=UNROLL)
+    interp = solver.interpolation_cls(t0=t0, t1=t0 + dt, **dense)
+
+    def residual(t):
+        return end(t, interp.evaluate(t), args)
+
+    # Start from the secant of the step's two ends, then Newton within the step.
+    t = t0 + dt * jnp.clip(-e_a / jnp.where(e_b != e_a, e_b - e_a, 1.0), 0.0, 1.0)
+    for _ in range(EVENT_NEWTON):
+        r, slope = jax.jvp(residual, (t,), (jnp.ones_like(t),))
+        t = jnp.clip(t - r / jnp.where(slope != 0, slope, 1.0), t0, t0 + dt)
+    x_end = interp.evaluate(t)
+    fell = -_fallen(0.0, x_end, args) >= cond(0.0, x_end, args)
+    code = jnp.where(~jnp.all(jnp.isfinite(x_end)), SOLVER,
+                     jnp.where(found & ~fell, OK, COLLISION))
     return x_end, code
 
 

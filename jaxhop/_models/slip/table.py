@@ -337,8 +337,8 @@ MULTI_ITER = 16  # their longest polish (the same stops as a table start's)
 
 def polish_cost(tol):
     """The polish's noise floor: C2 of an apex error of ten times the trial strides'
-    tolerance (1e-14 at SEARCH_TOL, 1e-8 at DECISION_TOL; `jaxhop._models.slip.kernels`)."""
-    return (10.0 * max(tol.rtol, tol.atol)) ** 2
+    accuracy (1e-14 at SEARCH_TOL, 1e-8 at DECISION_TOL; `jaxhop._models.slip.kernels`)."""
+    return (10.0 * tol.accuracy) ** 2
 
 
 def deadbeat_table(apex, goal, h, hopper, tol, table, terrain=None, wind=None,
