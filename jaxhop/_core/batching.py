@@ -93,9 +93,10 @@ def run_once(flag, fn, init):
     turn: under `vmap` a batch in which no lane needs it skips it (a `cond` would not).
 
     `fn` must add `zero` (a traced 0.0 that depends on the loop's carry) to an input of its
-    computation: XLA hoists loop-invariant work out of while loops, and an invariant `fn`
-    would then run whether or not the flag holds (measured: 8x the time of a deadbeat
-    solve that never needed it)."""
+    computation: XLA's while-loop invariant code motion would otherwise hoist an invariant
+    `fn` out of the loop, to run whether or not the flag holds (measured: 8x the time of a
+    deadbeat solve that never needed it). jaxhop's programs compile without that pass
+    (`COMPILER_OPTIONS`); a plain `jax.jit` of them runs it."""
     def body(c):
         zero = jnp.where(c[0], 0.0, jnp.nan)
         return jnp.asarray(False), fn(zero)
