@@ -11,7 +11,8 @@ Each is a pure function of one sample (vmap it for batches) unless its name is p
   dimensionless grid; `DEFAULT_GRID`.
 - `decide_slip`: the reactive controller's SLIP decision at one apex.
 - the control limits `KAPPA_LO, KAPPA_HI` (`kc rho0 / (m g)`) and `RATIO_LO, RATIO_HI`
-  (`kd / kc`), and the solvers' `Tolerances` (`STRIDE_TOL`, `SEARCH_TOL`, `DECISION_TOL`).
+  (`kd / kc`), and the solvers' `Tolerances` (`STRIDE_TOL`, `SEARCH_TOL`, `DECISION_TOL`,
+  `FIXED_DECISION_TOL`; `decision_tol` picks a decision's by the backend).
 
 `docs/slip.md` describes the model and the solvers.
 """
@@ -20,11 +21,13 @@ from ._control.decisions import decide_slip as decide_slip
 from ._models.slip.deadbeat import DeadbeatSearch as DeadbeatSearch
 from ._models.slip.deadbeat import deadbeat_slip as deadbeat_slip
 from ._models.slip.kernels import DECISION_TOL as DECISION_TOL
+from ._models.slip.kernels import FIXED_DECISION_TOL as FIXED_DECISION_TOL
 from ._models.slip.kernels import KAPPA_HI as KAPPA_HI
 from ._models.slip.kernels import KAPPA_LO as KAPPA_LO
 from ._models.slip.kernels import RATIO_HI as RATIO_HI
 from ._models.slip.kernels import RATIO_LO as RATIO_LO
 from ._models.slip.kernels import SEARCH_TOL as SEARCH_TOL
+from ._models.slip.kernels import decision_tol as decision_tol
 from ._models.slip.stride import STRIDE_TOL as STRIDE_TOL
 from ._models.slip.stride import Tolerances as Tolerances
 from ._models.slip.stride import flat_touchdown as flat_touchdown
