@@ -263,7 +263,7 @@ def decide_slip(apex, tables: PlanTables, hopper: Hopper, n_candidates: int = SL
     matching policies, predicts each stride over the policy's foothold height, and takes the
     first in deployment order whose prediction lies within `SLIP_ACCEPT` of its goal; when
     none does, the one with the smallest miss relative to `SLIP_ACCEPT`. The deadbeat's
-    trial strides and the prediction run at `decision_tol()` (an apex within 6e-5 of the
+    trial strides and the prediction run at `decision_tol()` (an apex within 7e-5 of the
     executed 1e-10 stride on a CPU, 1e-5 elsewhere: far inside `SLIP_ACCEPT`).
 
     A chosen miss whose predicted apex lies in the same policy's domain again, no nearer its

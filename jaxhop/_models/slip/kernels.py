@@ -56,10 +56,10 @@ RATIO_LO, RATIO_HI = KD_RATIO  # kd / kc
 TH_LO, TH_HI = -jnp.pi / 3, jnp.pi / 3
 # Searches run at looser tolerances than the simulated stride (1e-10): against it, on 2 000
 # random strides of the reference hopper, SEARCH_TOL moves an apex by at most 2e-8 m (m/s)
-# and DECISION_TOL by at most 6e-5: a controller's decision, whose prediction is accepted
+# and DECISION_TOL by at most 6.5e-5: a controller's decision, whose prediction is accepted
 # within 5 cm of its goal, polishes on the cheaper strides (docs/slip.md, "Deadbeat"). On an
 # accelerator a decision runs fixed-shape strides instead (`FIXED_DECISION_TOL`, 10 steps
-# per stance phase, at most 3.4e-6 there; docs/slip.md, "Fixed-shape trial strides").
+# per stance phase, at most 3.0e-6 there; docs/slip.md, "Fixed-shape trial strides").
 SEARCH_TOL = Tolerances(rtol=1e-8, atol=1e-8)
 DECISION_TOL = Tolerances(rtol=1e-5, atol=1e-5)
 FIXED_DECISION_TOL = Tolerances(steps=10)
