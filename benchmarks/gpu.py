@@ -66,8 +66,10 @@ def _start(platform_: str, cores: str, models: list[str], repeats: int, cold_run
         env["JAX_PLATFORMS"] = "cpu"
     cmd = ["taskset", "-c", cores, sys.executable, "-c", _CHILD, ",".join(models),
            str(repeats), str(cold_runs)]
-    return subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=open(log, "w"),
-                            text=True)
+    stderr_log = open(log, "w")
+    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=stderr_log, text=True)
+    proc.stderr_log = stderr_log
+    return proc
 
 
 def _cores() -> int:
@@ -92,6 +94,7 @@ def main(argv=None) -> int:
     results = {}
     for name, proc in procs.items():
         stdout, _ = proc.communicate()
+        proc.stderr_log.close()
         if proc.returncode:
             print(f"{name} process failed ({proc.returncode}); see its log", file=sys.stderr)
             return 1

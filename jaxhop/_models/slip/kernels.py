@@ -72,6 +72,8 @@ def decision_tol(platform: str | None = None) -> Tolerances:
     loop waits for the host (docs/slip.md, "Fixed-shape trial strides")."""
     platform = jax.default_backend() if platform is None else platform
     return DECISION_TOL if platform == "cpu" else FIXED_DECISION_TOL
+
+
 # The speed the inner search sees where a trial stance fails (see `trial_stride`).
 FAIL_SPEED = 1e3
 # Weights of C2 (eq 16): position (m) and velocity (m/s) errors weigh the same.

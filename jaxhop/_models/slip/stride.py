@@ -144,8 +144,6 @@ SPAN = 1.5
 SPAN_MAX = 1.25
 # Newton turns that locate the phase's end on the step's dense output.
 EVENT_NEWTON = 6
-# Unrolled: one straight block of arithmetic per phase, no loop turns to wait for.
-UNROLL = False
 
 
 def phase_time(x0, k, hopper: Hopper, to_bottom: bool):
@@ -194,12 +192,13 @@ def fixed_phase(x0, k, hopper: Hopper, end, cond, steps: int):
         return (y, state, e, stop, crossing), None
 
     state0 = solver.init(term, 0.0, dt, x0, args)
-    _, _, dense0, _, _ = solver.step(term, 0.0, dt, x0, args, state0, False)
+    # The dense output's shapes, without a step of its own.
+    dense0 = jax.eval_shape(lambda: solver.step(term, 0.0, dt, x0, args, state0, False))[2]
     e0 = end(0.0, x0, args)
-    crossing0 = (jnp.zeros_like(dt), e0, e0, jax.tree.map(jnp.zeros_like, dense0))
+    crossing0 = (jnp.zeros_like(dt), e0, e0,
+                 jax.tree.map(lambda a: jnp.zeros(a.shape, a.dtype), dense0))
     (_, _, _, found, (t0, e_a, e_b, dense)), _ = jax.lax.scan(
-        turn, (x0, state0, e0, jnp.asarray(False), crossing0), jnp.arange(steps),
-        unroll=UNROLL)
+        turn, (x0, state0, e0, jnp.asarray(False), crossing0), jnp.arange(steps))
     interp = solver.interpolation_cls(t0=t0, t1=t0 + dt, **dense)
 
     def residual(t):
