@@ -95,9 +95,10 @@ def _refine(plane, p0, target, grid, e0):
 
 
 def table_starts(values, grid, apex, goal, h, hopper: Hopper, n_starts=TABLE_STARTS,
-                 terrain=None):
+                 terrain=None, flat_if_none=False):
     """`n_starts` refined table starts `(th, s)`, best first, and their squared errors
-    (`jaxhop._models.slip.table`)."""
+    (`jaxhop._models.slip.table`); with `flat_if_none`, those of flat ground where no
+    touchdown angle lands on the foothold's block."""
     plane = table_slice(values, grid, apex, goal, h, hopper)
     target = np.array([(goal[0] - apex[0]) / hopper.rho0,
                        goal[2] / math.sqrt(hopper.g * hopper.rho0)])
@@ -107,12 +108,16 @@ def table_starts(values, grid, apex, goal, h, hopper: Hopper, n_starts=TABLE_STA
     cost = np.where(np.isfinite(cost), cost, INF)
     th_axis = np.linspace(*grid[3])
     if terrain is not None:
+        landing = np.zeros(len(th_axis), bool)
         for k, th in enumerate(th_axis):
             offset = (hopper.rho0 * math.sin(th), -hopper.rho0 * math.cos(th))
             code, block, *_ = touchdown_one(apex, terrain, hopper, 0.0, offset)
-            if not (code == OK and terrain.heights[block] == h):
-                cost[k] = INF
-                plane[k] = np.nan
+            landing[k] = code == OK and terrain.heights[block] == h
+        flat = not np.any(landing[:, None] & (cost < INF))
+        if flat_if_none and flat:
+            landing[:] = True
+        cost[~landing] = INF
+        plane[~landing] = np.nan
     s_axis = np.linspace(*grid[4])
     col = cost.min(axis=0)
     cols = np.argsort(col, kind="stable")[:n_starts]  # as lax.top_k: ties to the lower
@@ -122,22 +127,28 @@ def table_starts(values, grid, apex, goal, h, hopper: Hopper, n_starts=TABLE_STA
     refined = [_refine(plane, p, target, grid, e if np.isfinite(e) else INF)
                for p, e in zip(cells, node)]
     order = np.argsort([e for _, e in refined], kind="stable")
-    return [refined[i][0] for i in order], [refined[i][1] for i in order]
+    errs = [refined[i][1] for i in order]
+    if terrain is not None and flat_if_none and flat:
+        errs = [INF] * len(errs)  # flat ground's starts: no start on the block
+    return [refined[i][0] for i in order], errs
 
 
 def staged(apex, goal, h, hopper: Hopper, sqrt_w, table, terrain, fallback, accept, tol):
     """`jaxhop._models.slip.table._deadbeat_table`: one start at a time until one ends with
     C2 <= `accept` (the table's starts, best first, then with `fallback` the multi-start
     solver's starts, all with the polish's stops; only the latter where the table has no
-    start); the best end wins. Returns `(p, C2, stage)`."""
-    starts, errs = table_starts(*table, apex, goal, h, hopper, TABLE_STARTS, terrain)
-    none = not np.isfinite(errs[0])  # no table start: only the multi-start solver's
-    n_all = TABLE_STARTS + 3 if fallback or none else TABLE_STARTS
+    start, and without `fallback` the starts over flat ground there, with the multi-start's
+    polish); the best end wins. Returns `(p, C2, stage)`."""
+    starts, errs = table_starts(*table, apex, goal, h, hopper, TABLE_STARTS, terrain,
+                                flat_if_none=not fallback)
+    none = not np.isfinite(errs[0])  # no table start
+    n_all = TABLE_STARTS + 3 if fallback else TABLE_STARTS
     best, cost, guesses = np.asarray(starts[0], float), INF, None
-    i = TABLE_STARTS if none else 0
+    i = TABLE_STARTS if none and fallback else 0
     while i < n_all and cost > accept:
         if i < TABLE_STARTS:
-            end, c = gauss_newton(starts[i], apex, goal, h, hopper, sqrt_w, POLISH_ITER,
+            end, c = gauss_newton(starts[i], apex, goal, h, hopper, sqrt_w,
+                                   MULTI_ITER if none else POLISH_ITER,
                                    polish_cost(tol), terrain, POLISH_MIN_TRUST, POLISH_STALL,
                                    tol)
         else:

@@ -26,7 +26,9 @@ class DeadbeatSearch(eqx.Module):
         table: `"gradient"` only: a `SlipTable` to start from (`table.deadbeat_table`);
             `None`: the multi-start solver's three starts.
         fallback: with `table`, the multi-start solver's starts where the table's best
-            miss has C2 above `accept`, or where the table has no start.
+            miss has C2 above `accept`, or where the table has no start; `False` (a
+            decision): none, and the table's starts over flat ground with a longer polish
+            where the table has no start.
         accept: the C2 below which a table start is accepted.
     """
 

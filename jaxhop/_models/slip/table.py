@@ -269,7 +269,7 @@ def _refine(plane, p0, target, grid: TableGrid, steps: int = REFINE_STEPS, e0=No
 
 
 def table_starts(table: SlipTable, apex, goal, h, hopper: Hopper, n_starts: int,
-                 terrain=None, wind=None):
+                 terrain=None, wind=None, flat_if_none=False):
     """`n_starts` starting points `(th, s)` of the deadbeat for the stride, best first, with
     their squared errors in the table's units (the refined point's, or its grid node's
     where refining finds nothing better; inf: no start).
@@ -281,6 +281,9 @@ def table_starts(table: SlipTable, apex, goal, h, hopper: Hopper, n_starts: int,
     With `terrain`, a touchdown angle whose foot does not land on a block at the foothold's
     height `h` (the descent with `wind` meets a wall, a hole, the map's end or another
     block: `jaxhop._models.flight.touchdown`) is no start: the table knows flat ground only.
+    With `flat_if_none`, where no angle lands there, the starts are those of flat ground,
+    still with error inf (the polish's strides then find the block; `deadbeat_table`
+    without `fallback`).
     """
     from ..flight import OK, touchdown
 
@@ -300,6 +303,9 @@ def table_starts(table: SlipTable, apex, goal, h, hopper: Hopper, n_starts: int,
             return (code == OK) & (terrain.heights[block] == h)
 
         landing = jax.vmap(lands)(th_axis)
+        flat = ~jnp.any(landing[:, None] & jnp.isfinite(cost))
+        if flat_if_none:
+            landing = landing | flat
         cost = jnp.where(landing[:, None], cost, jnp.inf)
         plane = jnp.where(landing[:, None, None], plane, jnp.nan)
     s_axis = jnp.linspace(*g.s)
@@ -312,7 +318,10 @@ def table_starts(table: SlipTable, apex, goal, h, hopper: Hopper, n_starts: int,
     node = jnp.where(jnp.isfinite(node), node, jnp.inf)
     refined, errs = jax.vmap(lambda p, e: _refine(plane, p, target, g, e0=e))(cells, node)
     order = jnp.argsort(errs)
-    return refined[order], errs[order]
+    errs = errs[order]
+    if terrain is not None and flat_if_none:
+        errs = jnp.where(flat, jnp.inf, errs)
+    return refined[order], errs
 
 
 # Table start (`jaxhop._models.slip.table`; `docs/slip.md`, "Deadbeat"): Gauss-Newton from one
@@ -345,16 +354,26 @@ def deadbeat_table(apex, goal, h, hopper, tol, table, terrain=None, wind=None,
                     fallback=True, accept=ACCEPT_C2, first=0, last=None):
     """The table-start solve: `(th_td, kc, c2, stage)`, `stage` that of the last start run
     (1-3). Starts `first .. last - 1` (traced; default: all, the multi-start ones only with
-    `fallback`; where the table has no start, only the multi-start ones) are tried in order
-    until one ends with C2 <= `accept`; the best end wins.
-    The multi-start guesses are computed only when the loop reaches them."""
-    starts, errs = table_starts(table, apex, goal, h, hopper, TABLE_STARTS, terrain, wind)
-    n_all = TABLE_STARTS + N_MULTI
-    # No table start (no touchdown angle of the table lands on the foothold's block): the
-    # multi-start solver's starts, with or without `fallback`.
+    `fallback`) are tried in order until one ends with C2 <= `accept`; the best end wins.
+    The multi-start guesses are computed only when the loop reaches them.
+
+    Where no touchdown angle of the table lands on the foothold's block (no table start),
+    with `fallback` (traced) only the multi-start solver's starts run. `fallback=False`
+    (static: a reactive decision) leaves the multi-start solver out of the program, which
+    halves its size: the table's starts over flat ground run there instead, each with the
+    multi-start's longer polish (`table_starts`, `flat_if_none`; docs/slip.md,
+    "Deadbeat")."""
+    multi = fallback is not False
+    starts, errs = table_starts(table, apex, goal, h, hopper, TABLE_STARTS, terrain, wind,
+                                flat_if_none=not multi)
+    n_all = TABLE_STARTS + N_MULTI if multi else TABLE_STARTS
     none = ~jnp.isfinite(errs[0])
-    first = jnp.where(none, jnp.maximum(first, TABLE_STARTS), first)
-    last = jnp.where(jnp.asarray(fallback) | none, n_all, TABLE_STARTS) if last is None else last
+    if multi:
+        first = jnp.where(none, jnp.maximum(first, TABLE_STARTS), first)
+        if last is None:
+            last = jnp.where(jnp.asarray(fallback) | none, n_all, TABLE_STARTS)
+    elif last is None:
+        last = n_all
     kc_lo, kc_hi = kc_limits(hopper)
 
     def more(carry):
@@ -363,16 +382,17 @@ def deadbeat_table(apex, goal, h, hopper, tol, table, terrain=None, wind=None,
 
     def next_start(carry):
         i, p, c2, guesses = carry
-        guesses = run_once((i >= TABLE_STARTS) & jnp.all(jnp.isnan(guesses)),
-                        lambda zero: initial_guesses(apex + zero, goal, h, hopper, tol,
-                                                      terrain, wind),
-                        guesses)
         table_start = i < TABLE_STARTS
-        p0 = jnp.where(table_start, starts[jnp.minimum(i, TABLE_STARTS - 1)],
-                       guesses[jnp.clip(i - TABLE_STARTS, 0, N_MULTI - 1)])
+        p0 = starts[jnp.minimum(i, TABLE_STARTS - 1)]
+        if multi:
+            guesses = run_once((i >= TABLE_STARTS) & jnp.all(jnp.isnan(guesses)),
+                               lambda zero: initial_guesses(apex + zero, goal, h, hopper, tol,
+                                                            terrain, wind),
+                               guesses)
+            p0 = jnp.where(table_start, p0, guesses[jnp.clip(i - TABLE_STARTS, 0, N_MULTI - 1)])
 
         th, kc, c = deadbeat_gradient(apex, goal, h, hopper, tol,
-                                       jnp.where(table_start, POLISH_ITER, MULTI_ITER),
+                                       jnp.where(table_start & ~none, POLISH_ITER, MULTI_ITER),
                                        polish_cost(tol), terrain, wind, p0[None],
                                        POLISH_MIN_TRUST, POLISH_STALL)
         better = c < c2
@@ -380,7 +400,7 @@ def deadbeat_table(apex, goal, h, hopper, tol, table, terrain=None, wind=None,
         return i + 1, jnp.where(better, q, p), jnp.minimum(c, c2), guesses
 
     carry = (jnp.asarray(first), starts[0], jnp.asarray(jnp.inf),
-             jnp.full((N_MULTI, 2), jnp.nan))
+             jnp.full((N_MULTI if multi else 0, 2), jnp.nan))
     i, p, c2, _ = jax.lax.while_loop(more, next_start, carry)
     stage = jnp.where(i <= 1, 1, jnp.where(i <= TABLE_STARTS, 2, 3))  # of the last start
     return p[0], kc_lo + p[1] * (kc_hi - kc_lo), c2, stage
