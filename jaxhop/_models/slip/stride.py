@@ -13,6 +13,7 @@ liftoff, a leg compressed below `COLLAPSED * rho0`, a liftoff that does not rise
 `COLLISION`.
 """
 
+import functools
 from typing import NamedTuple
 
 import diffrax
@@ -104,6 +105,11 @@ def _liftoff(t, y, args, **kwargs):
     return y[0] - args[1].rho0
 
 
+# Jitted so that every stance phase of one kind (compression or decompression, at one
+# tolerance) is traced once per process: a SLIP decision integrates dozens of them, and each
+# trace of a diffrax solve with its event takes about a second of Python. Inside a jaxhop
+# program the call is inlined and compiled with the program's options.
+@functools.partial(jax.jit, static_argnames=("cond", "tol"))
 def _phase(x0, k, hopper: Hopper, cond, tol: Tolerances):
     """Integrate eq 10 from `x0` until `cond` up-crosses 0 (or the COM falls).
 
