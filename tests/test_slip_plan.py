@@ -133,6 +133,25 @@ def test_slip_cache_key_differs():
     assert len({a, b, c}) == 3
 
 
+def test_runs_read_the_foot_lead_only_so_planning_settings_share_one_controller():
+    # Two SLIP plans that differ in eq 35's constants and the reversal / direction rules
+    # run on one compiled controller: their run-time templates have one tree structure
+    # (static fields included), the foot lead of eq 37 is the planning templates' own, and
+    # the domains (eq 36) contain the same apexes. BHop templates are their own.
+    base = templates_for("slip")
+    other = paper_templates().for_slip(SlipAdjust.printed(v_max=base.slip.v_max))
+    assert jax.tree_util.tree_structure(base) != jax.tree_util.tree_structure(other)
+    runs = [t.for_runs() for t in (base, other)]
+    assert jax.tree_util.tree_structure(runs[0]) == jax.tree_util.tree_structure(runs[1])
+    ydot = jnp.linspace(-3.0, 3.0, 61)
+    for t, r in zip((base, other), runs):
+        assert np.array_equal(np.asarray(foot_lead(ydot, r)), np.asarray(foot_lead(ydot, t)))
+        assert np.array_equal(np.asarray(foot_lead(ydot, r)),
+                              ydot * math.sin(0.2) / base.slip.v_max)
+    bhop = templates_for("bhop")
+    assert bhop.for_runs() is bhop
+
+
 def test_templates_for_rejects_unknown_model():
     from jaxhop import InputError
 

@@ -82,7 +82,8 @@ def bucketed(tables: PlanTables, true_terrain: Terrain) -> tuple[PlanTables, Ter
     instantiated policies to a power of two. A SLIP controller takes minutes to compile;
     with these buckets a perceived map, or another terrain of about the size of the
     built-in ones, runs on the program compiled for the first (the maps lose their names,
-    which are static fields)."""
+    which are static fields; the templates keep only the SLIP fields runs read,
+    `Templates.for_runs`)."""
     nb = bucket(max(tables.terrain.n_blocks, true_terrain.n_blocks) + 1, 32)
     ns = bucket(tables.table.seg_block.shape[0], 64)
     ni = pow2_at_least(tables.goals.shape[0])
@@ -90,7 +91,8 @@ def bucketed(tables: PlanTables, true_terrain: Terrain) -> tuple[PlanTables, Ter
     # The maps' names are static fields: a program keyed by them would not be shared.
     unnamed = [Terrain(t.starts, t.ends, t.heights)
                for t in (tables.terrain, pad_terrain(true_terrain, nb))]
-    return eqx.tree_at(lambda tb: tb.terrain, tables, unnamed[0]), unnamed[1]
+    tables = eqx.tree_at(lambda tb: tb.terrain, tables, unnamed[0])
+    return dataclasses.replace(tables, templates=tables.templates.for_runs()), unnamed[1]
 
 
 @dataclasses.dataclass

@@ -111,6 +111,13 @@ class SlipAdjust:
             del out["rho0"], out["g"]
         return out
 
+    def lead_only(self) -> SlipAdjust:
+        """The fields the controller reads at run time, the foot lead's (eq 37: `theta_avg`,
+        `v_max`, `rho0`, `g`), the others at their defaults. Eq 35's limits and the
+        direction rules shape the plan only; a controller keyed by them would be compiled
+        once per plan setting (`Templates.for_runs`)."""
+        return SlipAdjust(theta_avg=self.theta_avg, v_max=self.v_max, rho0=self.rho0, g=self.g)
+
     def lead(self, ydot):
         """`Y` of eq 37: how far ahead of the BHop foot the SLIP foot lands (m)."""
         length, speed = self.scales()
@@ -177,6 +184,16 @@ class Templates(eqx.Module):
             adjust = adjust.for_hopper(hopper)
         return Templates(*(getattr(self, f) for f in _FIELDS), seg_length=self.seg_length,
                          slip=adjust)
+
+    def for_runs(self) -> Templates:
+        """These templates as the run-time controller reads them: the SLIP adjustments
+        reduced to the foot lead (`SlipAdjust.lead_only`; the domains of eq 36 and the
+        recoveries use it), so plans built with other planning-only settings run on one
+        compiled controller."""
+        if self.slip is None:
+            return self
+        return Templates(*(getattr(self, f) for f in _FIELDS), seg_length=self.seg_length,
+                         slip=self.slip.lead_only())
 
     def as_array(self) -> np.ndarray:
         return np.stack([np.asarray(getattr(self, f)) for f in _FIELDS], axis=1)
