@@ -136,8 +136,8 @@ def test_slip_cache_key_differs():
 def test_runs_read_the_foot_lead_only_so_planning_settings_share_one_controller():
     # Two SLIP plans that differ in eq 35's constants and the reversal / direction rules
     # run on one compiled controller: their run-time templates have one tree structure
-    # (static fields included), the foot lead of eq 37 is the planning templates' own, and
-    # the domains (eq 36) contain the same apexes. BHop templates are their own.
+    # (static fields included), and the foot lead of eq 37 they give is the planning
+    # templates' own. BHop templates are their own.
     base = templates_for("slip")
     other = paper_templates().for_slip(SlipAdjust.printed(v_max=base.slip.v_max))
     assert jax.tree_util.tree_structure(base) != jax.tree_util.tree_structure(other)

@@ -91,8 +91,8 @@ def bucketed(tables: PlanTables, true_terrain: Terrain) -> tuple[PlanTables, Ter
     # The maps' names are static fields: a program keyed by them would not be shared.
     unnamed = [Terrain(t.starts, t.ends, t.heights)
                for t in (tables.terrain, pad_terrain(true_terrain, nb))]
-    tables = eqx.tree_at(lambda tb: tb.terrain, tables, unnamed[0])
-    return dataclasses.replace(tables, templates=tables.templates.for_runs()), unnamed[1]
+    return dataclasses.replace(tables, terrain=unnamed[0],
+                               templates=tables.templates.for_runs()), unnamed[1]
 
 
 @dataclasses.dataclass

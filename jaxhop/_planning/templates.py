@@ -192,8 +192,7 @@ class Templates(eqx.Module):
         compiled controller."""
         if self.slip is None:
             return self
-        return Templates(*(getattr(self, f) for f in _FIELDS), seg_length=self.seg_length,
-                         slip=self.slip.lead_only())
+        return dataclasses.replace(self, slip=self.slip.lead_only())
 
     def as_array(self) -> np.ndarray:
         return np.stack([np.asarray(getattr(self, f)) for f in _FIELDS], axis=1)
