@@ -91,6 +91,10 @@ def _field(t, x, args):
     return jnp.stack([rhod, thd, rhodd, thdd])
 
 
+#: Eq 10's vector field `(t, (rho, th, rho', th'), (k, hopper))`, for a sampled stance.
+stance_field = _field
+
+
 def _fallen(t, y, args, **kwargs):
     # The body meets the ground: the COM at the foot's level, or the leg collapsed below
     # `COLLAPSED * rho0` (which also keeps the solver away from the singularity at rho = 0).
