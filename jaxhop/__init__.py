@@ -89,6 +89,9 @@ from ._planning.templates import dimensionless_templates as dimensionless_templa
 from ._planning.templates import make_templates as make_templates
 from ._planning.templates import paper_templates as paper_templates
 from ._planning.templates import scaled_templates as scaled_templates
+from ._viz.explore import Explorer as Explorer
+from ._viz.explore import explore as explore
+from ._viz.explore import explore_stride as explore_stride
 
 if _jax.config.jax_compilation_cache_dir is None:
     _jax.config.update("jax_compilation_cache_dir", _os.path.join(cache_dir(), "xla"))

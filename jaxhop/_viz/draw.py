@@ -158,6 +158,24 @@ def draw_run(ax, apexes: np.ndarray, footholds: np.ndarray, rho0: float = 1.0,
 # --- cross-sections of the policies' regions (Figs. 13, 19) ------------------------------
 
 
+@jit
+def _section_bounds(t, v_d, v_g, tmpls, hop):
+    """The domain's height bounds at `v_d` and the feasible goal's at `v_g` of templates `t`
+    (jitted once here: an explorer redraws one policy's sections without tracing)."""
+    import jax
+    import jax.numpy as jnp
+
+    from .._planning.regions import domain_height_bounds, goal_height_bounds
+
+    def one(t, v_d, v_g):
+        tmpl = tmpls.row(t)
+        d = domain_height_bounds(v_d, tmpl, hop)
+        gb = goal_height_bounds(v_g, tmpl, hop)
+        return jnp.stack(d), jnp.stack(gb)
+
+    return jax.vmap(one)(t, v_d, v_g)
+
+
 def policy_cross_sections(plan: Plan, policies, apexes, n: int = 40):
     """Cross-sections in `(y, z)` of the domain and feasible goal of the policies used.
 
@@ -170,10 +188,7 @@ def policy_cross_sections(plan: Plan, policies, apexes, n: int = 40):
     Returns:
         list of `(domain_polygon, goal_polygon)`, each an `(m, 2)` array or None if empty.
     """
-    import jax
     import jax.numpy as jnp
-
-    from .._planning.regions import domain_height_bounds, goal_height_bounds
 
     policies = np.asarray(policies)
     policies = policies[policies >= 0]
@@ -188,16 +203,7 @@ def policy_cross_sections(plan: Plan, policies, apexes, n: int = 40):
     hop, tmpls = plan.hopper, plan.templates
     l = tmpls.half_length
 
-    def bounds(t, v_d, v_g, tmpls, hop):
-        def one(t, v_d, v_g):
-            tmpl = tmpls.row(t)
-            d = domain_height_bounds(v_d, tmpl, hop)
-            gb = goal_height_bounds(v_g, tmpl, hop)
-            return jnp.stack(d), jnp.stack(gb)
-
-        return jax.vmap(one)(t, v_d, v_g)
-
-    d_b, g_b = (np.asarray(x) for x in jit(bounds)(
+    d_b, g_b = (np.asarray(x) for x in _section_bounds(
         jnp.asarray(t_idx), jnp.asarray(apexes[:, 2]), jnp.asarray(goals[:, 2]), tmpls, hop))
     dy_lo, dy_hi = np.asarray(tmpls.dy_lo)[t_idx], np.asarray(tmpls.dy_hi)[t_idx]
     rho0, g = float(hop.rho0), float(hop.g)
