@@ -31,6 +31,19 @@ This notebook walks through the pipeline of Arslan & Saranli (2012) on the built
 `reference` terrain. It goes from policy templates and their regions, through situating
 and instantiation, the prepares relation and the deployed order, to reactive runs."""),
         ("code", IMPORTS),
+        ("md", """## Explore first
+
+`jaxhop.explore(plan)` runs the reactive controller from the initial apex of the sliders,
+with the controller, disturbance and seed of the dropdowns, and draws the run over the
+terrain (top). The `policy` slider picks a deployed policy by its position in the order;
+the bottom panel shades its domain at the apex's `ydot` (dark red) and its feasible goal
+(light green), and marks the segments of the policies it prepares (orange). Everything is
+compiled when the explorer is built; a change redraws in a fraction of a second. It needs
+`pip install "jaxhop[notebook]"` (ipywidgets); `docs/explore.md` says more."""),
+        ("code", '''terrain = jaxhop.builtin_terrain("reference")
+plan = jaxhop.get_plan(terrain, progress=False)  # built once, then loaded from the cache
+explorer = jaxhop.explore(plan, [0.6, 1.6, 0.5])
+explorer'''),
         ("md", """## Templates and their regions (Fig. 9)
 
 Each of the 20 templates has an analytic domain `D` (apex states from which the stride
@@ -44,10 +57,9 @@ fig = _plot.template_regions_figure(templates, hopper)'''),
 `get_plan` situates the 20 templates on every 15 cm segment and instantiates every pair
 whose regions intersect, with a goal chosen to maximise the margin to the boundary. It
 builds the prepares relation and deploys by backchaining from the goal. The first call
-builds the plan (compilation included); later calls load it from the cache."""),
-        ("code", '''terrain = jaxhop.builtin_terrain("reference")
-plan = jaxhop.get_plan(terrain, progress=False)
-plan.summary()'''),
+(at the top of this notebook) builds the plan, compilation included; later calls load it
+from the cache."""),
+        ("code", '''plan.summary()'''),
         ("code", '''fig = _plot.goal_coverage_figure(plan)
 fig = _plot.prepares_figure(plan)'''),
         ("md", """## Global domain and two reactive runs (Figs. 10, 13)
@@ -168,6 +180,17 @@ from jaxhop import plot as _plot
 QUICK = bool(os.environ.get("JAXHOP_NB_QUICK"))
 N = 9 if QUICK else 41
 hopper = jaxhop.Hopper()'''),
+    ("md", """## Explore one stride
+
+`jaxhop.explore_stride(hopper)` draws one SLIP stride over flat ground from the apex of the
+sliders with the touchdown angle `th_td` and the stiffnesses `kc`, `kd` of the sliders:
+the descent, the compression and decompression (legs drawn at touchdown, bottom and
+liftoff) and the rise, with the next apex and the result code. The `deadbeat` button
+solves for the controls that reach the `target` apex (the open red circle) and reports
+the error. Building it compiles the stride and the deadbeat (about half a minute); a
+change then redraws at once. It needs `pip install "jaxhop[notebook]"`."""),
+    ("code", '''stride_explorer = jaxhop.explore_stride(hopper)
+stride_explorer'''),
     ("md", """## One stride, and its apex return map
 
 A stride starts at an apex `(y, z, ydot)`. The controls are the touchdown angle `th_td`

@@ -2,8 +2,9 @@
 and one SLIP stride with its deadbeat (`explore_stride`); `docs/explore.md`.
 
 Each explorer is an `Explorer`: a widget box whose controls redraw one matplotlib figure in
-place (its artists' data are replaced, then the figure is rendered by Agg into an image
-widget), so it needs no interactive backend and runs headless. Every program a value
+place, so it needs no interactive backend and runs headless. Its artists' data are
+replaced and only they are drawn by Agg over the figure's static background (terrain,
+axes), rendered once; the result goes to an image widget as a PNG. Every program a value
 change calls is compiled when the explorer is built: the dropdowns offer only what was
 compiled then (`models`, `controllers`), and everything else a control sets (apex,
 disturbance, seed, controls, targets) is a traced value of the same shape.
@@ -35,6 +36,10 @@ from .stride_path import stride_path_jit
 #: map, hence the plan, and is left out).
 NOISES = ("none", "wind", "sensor", "wind+sensor")
 
+#: The explorers' figures' resolution (dots per inch).
+DPI = 80
+TITLE = {"loc": "left", "fontsize": 9}
+
 deadbeat_jit = jit(deadbeat_slip)
 
 
@@ -49,14 +54,21 @@ def _widgets():
 class Explorer:
     """An explorer: `widget` (display it, or let a notebook cell end with the explorer),
     `figure` (its matplotlib figure), `controls` (name -> widget), `artists` (name ->
-    matplotlib artist), `result` (what the figure shows now, as a dict) and `status` (the
-    text widget under the figure)."""
+    matplotlib artist, drawn over the static background), `result` (what the figure shows
+    now, as a dict), `image` (the image widget; `image.value` is the PNG shown) and
+    `status` (the text widget under the figure)."""
 
     def __init__(self, figure, controls: dict, artists: dict, draw):
         ipw = _widgets()
         from matplotlib.backends.backend_agg import FigureCanvasAgg
 
-        FigureCanvasAgg(figure)
+        self._canvas = FigureCanvasAgg(figure)
+        for artist in artists.values():
+            artist.set_animated(True)  # left out of the background
+        for ax in figure.axes:
+            ax.set_autoscale_on(False)
+        self._canvas.draw()
+        self._background = self._canvas.copy_from_bbox(figure.bbox)
         self.figure, self.controls, self.artists, self.result = figure, controls, artists, {}
         self.image = ipw.Image(format="png")
         self.status = ipw.HTML()
@@ -84,9 +96,16 @@ class Explorer:
     def redraw(self):
         if self._held:
             return
+        from PIL import Image
+
         self._draw(self, self.values())
+        canvas = self._canvas
+        canvas.restore_region(self._background)
+        for artist in self.artists.values():
+            self.figure.draw_artist(artist)
         buf = io.BytesIO()
-        self.figure.savefig(buf, format="png", dpi=72)
+        Image.frombuffer("RGBA", canvas.get_width_height(), canvas.buffer_rgba()).save(
+            buf, format="png", compress_level=1)
         self.image.value = buf.getvalue()
 
     def _repr_mimebundle_(self, **kwargs):
@@ -152,7 +171,7 @@ def explore(plan: Plan, apex0=None, *, models: Sequence[str] = ("bhop",),
         "noise": ipw.Dropdown(options=list(noises), description="disturbance"),
         "seed": ipw.Dropdown(options=list(range(seeds)), description="seed"),
     }
-    fig = Figure(figsize=(10, 6.2))
+    fig = Figure(figsize=(7.6, 6.8), dpi=DPI)
     ax_run, ax_pol = fig.subplots(2, 1, sharex=True)
     for ax in (ax_run, ax_pol):
         draw_terrain(ax, terrain)
@@ -170,8 +189,8 @@ def explore(plan: Plan, apex0=None, *, models: Sequence[str] = ("bhop",),
         "goal": ax_pol.plot([], [], "o", mfc="none", mec="darkgreen", ms=7, zorder=6)[0],
         "prepared": ax_pol.plot([], [], color="tab:orange", lw=4, zorder=4)[0],
         "apex": ax_pol.plot([], [], "x", color="tab:blue", ms=8, mew=2, zorder=6)[0],
-        "run_title": ax_run.set_title(""),
-        "policy_title": ax_pol.set_title(""),
+        "run_title": ax_run.set_title("\n", **TITLE),
+        "policy_title": ax_pol.set_title("\n", **TITLE),
     }
     fig.tight_layout()
     centre = np.asarray(plan.table().centre)
@@ -192,8 +211,13 @@ def explore(plan: Plan, apex0=None, *, models: Sequence[str] = ("bhop",),
             run({**{k: w.value for k, w in controls.items()}, "model": model,
                  "controller": controller})
 
+    last = {}
+
     def draw(ex: Explorer, values):
-        r, wind = run(values)
+        key = tuple(v for k, v in values.items() if k != "policy")
+        if last.get("key") != key:  # the policy picker alone draws the same run
+            last.update(key=key, run=run(values))
+        r, wind = last["run"]
         apexes = r["apexes"][np.all(np.isfinite(r["apexes"]), axis=1)]
         feet = r["footholds"][np.all(np.isfinite(r["footholds"]), axis=1)]
         parts = []
@@ -209,7 +233,7 @@ def explore(plan: Plan, apex0=None, *, models: Sequence[str] = ("bhop",),
         artists["start"].set_data([values["y"]], [values["z"]])
         head = (f"{values['model']}, {values['controller']} controller, {values['noise']}, "
                 f"seed {values['seed']}: ")
-        artists["run_title"].set_text(head + _run_text(r, 12))
+        artists["run_title"].set_text(head + "\n" + _run_text(r, 12))
         a = int(plan.order[values["policy"]])
         apex = np.array([values["y"], values["z"], values["ydot"]])
         dom, goal_poly = policy_cross_sections(plan, [a], [apex])[0]
@@ -225,9 +249,9 @@ def explore(plan: Plan, apex0=None, *, models: Sequence[str] = ("bhop",),
         zs[2::3] = np.nan
         artists["prepared"].set_data(ys, zs)
         artists["policy_title"].set_text(
-            f"deployed policy {values['policy']} of {len(plan.order)} (instantiated {a}): "
+            f"deployed policy {values['policy']} of {len(plan.order)} (instantiated {a}):\n"
             f"domain at ydot {apex[2]:.2f}, goal ({goal[0]:.2f}, {goal[1]:.2f}, "
-            f"{goal[2]:.2f}), prepares policies on {segs.size} segments")
+            f"{goal[2]:.2f}), prepares policies on segments: {segs.size}")
         ex.result = {**r, "policy": a, "prepared_segments": segs}
         ex.status.value = head + _run_text(r)
 
@@ -275,10 +299,10 @@ def explore_stride(hopper: Hopper | None = None, apex=(0.0, 1.3, 1.0), u=None, *
         "target_ydot": _slider(ipw, "target ydot", 0.0, v_hi, apex[2], 0.01),
         "deadbeat": ipw.Button(description="deadbeat"),
     }
-    fig = Figure(figsize=(9, 3.6))
+    fig = Figure(figsize=(5.6, 3.8), dpi=DPI)
     ax = fig.subplots()
     draw_terrain(ax, terrain, depth=0.3)
-    ax.set_xlim(apex[0] - 1.2 * rho0, apex[0] + 3.2 * rho0)
+    ax.set_xlim(apex[0] - 0.6 * rho0, apex[0] + 2.2 * rho0)
     ax.set_ylim(ground - 0.3, z_hi + 0.2)
     artists = {
         "path": ax.plot([], [], color="tab:blue", lw=1.3, zorder=5)[0],
@@ -286,7 +310,7 @@ def explore_stride(hopper: Hopper | None = None, apex=(0.0, 1.3, 1.0), u=None, *
         "foot": ax.plot([], [], "v", color="tab:blue", ms=6, zorder=6)[0],
         "next_apex": ax.plot([], [], "o", color="tab:blue", ms=5, zorder=6)[0],
         "target": ax.plot([], [], "o", mfc="none", mec="tab:red", ms=8, mew=1.5, zorder=6)[0],
-        "title": ax.set_title(""),
+        "title": ax.set_title("\n", **TITLE),
     }
     fig.tight_layout()
     state = {"deadbeat": None}
@@ -310,11 +334,11 @@ def explore_stride(hopper: Hopper | None = None, apex=(0.0, 1.3, 1.0), u=None, *
         goal = target(values)
         artists["target"].set_data([goal[0]], [goal[1]])
         nxt = ", ".join(f"{x:.4f}" for x in p.next_apex)
-        text = f"next apex ({nxt}), {RESULT_NAMES[int(p.code)]}"
+        text = f"next apex ({nxt}): {RESULT_NAMES[int(p.code)]}"
         solved = state["deadbeat"]
         if solved is not None:
             err = float(np.max(np.abs(p.next_apex - solved["target"])))
-            text += (f"; deadbeat to ({', '.join(f'{x:.3f}' for x in solved['target'])}): "
+            text += (f"\ndeadbeat to ({', '.join(f'{x:.3f}' for x in solved['target'])}): "
                      f"{'solved' if solved['ok'] else 'limits hit'}, error {err:.1e}")
             solved["error"] = err
         artists["title"].set_text(text)
