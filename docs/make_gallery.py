@@ -1,5 +1,5 @@
-"""Regenerate the figures of `docs/gallery/`: `python docs/make_gallery.py` (about a minute
-with the plan cached)."""
+"""Regenerate the figures of `docs/gallery/`: `python docs/make_gallery.py` (about two
+minutes with the plan cached)."""
 
 import pathlib
 
@@ -42,6 +42,21 @@ def main():
 
     course = load_course("mppc-sim-1")
     save(plot_run(course, run_course(course, MPPC())), "mppc_sim1.png")
+    explorers(plan)
+
+
+def explorers(plan):
+    """The explorers as a notebook shows them (`docs/explore.md`): the run from an apex with
+    its first policy picked, and a stride after its deadbeat (half a minute to compile)."""
+    ex = jaxhop.explore(plan, [0.6, 1.6, 0.5])
+    first = int(ex.result["policies"][0])
+    ex.set(noise="wind", policy=int(np.nonzero(plan.order == first)[0][0]))
+    OUT.mkdir(exist_ok=True)
+    (OUT / "explore.png").write_bytes(ex.image.value)
+    st = jaxhop.explore_stride()
+    st.set(target_y=0.8, target_z=1.35, target_ydot=0.9)
+    st.controls["deadbeat"].click()
+    (OUT / "explore_stride.png").write_bytes(st.image.value)
 
 
 if __name__ == "__main__":
