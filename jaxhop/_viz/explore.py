@@ -339,7 +339,7 @@ def explore_stride(hopper: Hopper | None = None, apex=(0.0, 1.3, 1.0), u=None, *
         if solved is not None:
             err = float(np.max(np.abs(p.next_apex - solved["target"])))
             text += (f"\ndeadbeat to ({', '.join(f'{x:.3f}' for x in solved['target'])}): "
-                     f"{'solved' if solved['ok'] else 'limits hit'}, error {err:.1e}")
+                     f"{'within the limits' if solved['ok'] else 'limits hit'}, error {err:.1e}")
             solved["error"] = err
         artists["title"].set_text(text)
         ex.result = {"next_apex": p.next_apex, "code": int(p.code), "foot": p.foot,
