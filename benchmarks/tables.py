@@ -365,8 +365,46 @@ def goals() -> list[str]:
             + "; ".join(f"\"{r['reason']}\"" for r in refused) + "."]
 
 
+def floor_ms(x: float) -> str:
+    """Milliseconds to 0.1, truncated (never rounded up)."""
+    return f"{math.floor(x * 1e4 + 1e-9) / 10:.1f} ms"
+
+
+def loads(triple) -> str:
+    return ", ".join(f"{x:.2f}" for x in triple)
+
+
+def explorers() -> list[str]:
+    name = "cpu2-explore-2026-11.json"
+    d = load(name)
+    rows = []
+    for key, what in (("bhop_run", "BHop run (`explore`: apex; disturbance, seed, controller)"),
+                      ("policy", "policy picker (`explore`)"),
+                      ("slip_stride", "SLIP stride (`explore_stride`: `th_td`)"),
+                      ("slip_deadbeat", "SLIP deadbeat (`explore_stride`: target, button)")):
+        r = d["redraw"][key]
+        rows.append([what, r["n"], floor_ms(r["min_s"]), floor_ms(r["median_s"]),
+                     f"**{floor_ms(r['max_s'])}**", floor_ms(r["bound_s"])])
+    b, s, errors = d["build_s"], d["bhop_run_strides"], d["deadbeat_errors"]
+    return ["### Notebook explorers (`explore.py`)",
+            f"`results/{name}`: {d['device']}, jax {d['jax']}, "
+            f"load average {loads(d['load_before'])} before and {loads(d['load_after'])} "
+            f"after (1, 5 and 15 min, `uptime`), the "
+            f"`{d['plan']}` plan. A redraw: from the widget change to the new PNG, computation "
+            f"included, warm. Build (compilation included, an empty compilation cache): "
+            f"`explore` {sig3(b['explore'])} s, `explore_stride` {sig3(b['explore_stride'])} "
+            f"s; traces and compilations over all changes: "
+            f"{d['traces_and_compiles']['on_changes']}.", ""] + table(
+        ["redraw", "changes", "min", "median", "max", "bound"], rows) + [
+        "", f"The BHop runs took {s['min']}-{s['max']} strides. The deadbeat's targets are "
+        f"random (seed 0); its controls were within the limits for "
+        f"{d['deadbeat_within_limits']} of {len(errors)}, and the next apex lay within 1 mm "
+        f"of the target for {sum(e < 1e-3 for e in errors)} (largest error "
+        f"{max(errors):.1e})."]
+
+
 SECTIONS = [twin, robustness_bhop, robustness_slip, parkour_bhop, parkour_slip, updates, gpu,
-            goals]
+            goals, explorers]
 
 
 def render() -> str:
