@@ -3,33 +3,22 @@
 `stride_path` returns `slip_stride`'s next apex, code and foothold together with the COM
 path at a fixed number of samples, so that one compiled program serves every stride an
 explorer draws (`jaxhop.explore_stride`). The stance is integrated again with dense output
-(the same field and tolerances as `slip_stride`) and sampled evenly in time in each phase;
-the flights are the ballistic parabolas. Windless.
+(`sampled_stance`: the same phases and tolerances as `slip_stride`) and sampled evenly in
+time in each phase; the flights are the ballistic parabolas. Windless.
 """
 
 from __future__ import annotations
 
 from typing import NamedTuple
 
-import diffrax
 import jax
 import jax.numpy as jnp
-import optimistix as optx
 
 from .._core.params import Hopper
 from .._core.programs import jit
 from .._core.terrain import Terrain
 from .._models.flight import OK, touchdown
-from .._models.slip.stride import (
-    COLLAPSED,
-    MAX_STEPS,
-    PHASE_T_MAX,
-    STRIDE_TOL,
-    cartesian,
-    polar_state,
-    slip_stride,
-    stance_field,
-)
+from .._models.slip.stride import cartesian, sampled_stance, slip_stride
 
 #: Samples of each flight and of each stance phase.
 N_FLIGHT = 24
@@ -53,26 +42,6 @@ class StridePath(NamedTuple):
     liftoff: jnp.ndarray
 
 
-def _sampled_phase(x0, k, hopper: Hopper, to_bottom: bool):
-    """`N_STANCE` polar states evenly spaced in time over one stance phase, from `x0` to
-    the bottom (`rho' = 0`) or to liftoff (`rho = rho0`), or to a fall (the COM at the
-    foot's level, a collapsed leg), whichever comes first."""
-
-    def end(t, y, args, **kwargs):
-        cond = y[2] if to_bottom else y[0] - hopper.rho0
-        fallen = jnp.minimum(y[0] * jnp.cos(y[1]), y[0] - COLLAPSED * hopper.rho0)
-        return jnp.maximum(cond, -fallen)
-
-    sol = diffrax.diffeqsolve(
-        diffrax.ODETerm(stance_field), diffrax.Tsit5(), 0.0, PHASE_T_MAX, None, x0,
-        args=(k, hopper), saveat=diffrax.SaveAt(t1=True, dense=True),
-        stepsize_controller=diffrax.PIDController(rtol=STRIDE_TOL.rtol, atol=STRIDE_TOL.atol),
-        event=diffrax.Event(end, optx.Newton(rtol=1e-13, atol=1e-13), direction=True),
-        max_steps=MAX_STEPS, throw=False)
-    ts = jnp.linspace(0.0, 1.0, N_STANCE) * sol.ts[-1]
-    return jax.vmap(sol.evaluate)(ts)
-
-
 def _parabola(y, z, vy, vz, duration, g):
     t = jnp.linspace(0.0, 1.0, N_FLIGHT) * duration
     return jnp.stack([y + vy * t, z + vz * t - 0.5 * g * t**2], axis=1)
@@ -89,15 +58,14 @@ def stride_path(apex, u, terrain: Terrain, hopper: Hopper) -> StridePath:
     td_code, _, t_td, _, v_td = touchdown(apex, offset, terrain, hopper)
     t_down = jnp.where(jnp.isfinite(t_td), t_td, 0.0)
     descent = _parabola(y, z, ydot, 0.0, t_down, g)
-    rhod, vth = polar_state(th, v_td)
-    landed = (td_code == OK) & (rhod < 0)
-    # A stance that never starts integrates a harmless dummy, drawn as NaN.
-    x0 = jnp.stack([hopper.rho0, jnp.where(landed, th, 0.0), jnp.where(landed, rhod, -1.0),
-                    jnp.where(landed, vth / hopper.rho0, 0.0)])
-    comp = _sampled_phase(x0, kc, hopper, True)
-    decomp = _sampled_phase(comp[-1], kd, hopper, False)
-    stance = jax.vmap(lambda x: cartesian(x)[0])(jnp.concatenate([comp, decomp])) + foot
-    p_lo, v_lo = cartesian(decomp[-1])
+    # A failed descent runs the benign dummy stance `slip_stride` runs; it is drawn as NaN.
+    reached = td_code == OK
+    states, loaded = sampled_stance(jnp.where(reached, th, 0.0),
+                                    jnp.where(reached, v_td, jnp.array([0.0, -1.0])),
+                                    kc, kd, hopper, N_STANCE)
+    landed = reached & loaded
+    stance = jax.vmap(lambda x: cartesian(x)[0])(states) + foot
+    p_lo, v_lo = cartesian(states[-1])
     p_lo = p_lo + foot
     rises = landed & (v_lo[1] > 0)
     rise = _parabola(p_lo[0], p_lo[1], v_lo[0], v_lo[1], jnp.maximum(v_lo[1], 0.0) / g, g)

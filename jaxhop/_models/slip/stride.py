@@ -91,10 +91,6 @@ def _field(t, x, args):
     return jnp.stack([rhod, thd, rhodd, thdd])
 
 
-#: Eq 10's vector field `(t, (rho, th, rho', th'), (k, hopper))`, for a sampled stance.
-stance_field = _field
-
-
 def _fallen(t, y, args, **kwargs):
     # The body meets the ground: the COM at the foot's level, or the leg collapsed below
     # `COLLAPSED * rho0` (which also keeps the solver away from the singularity at rho = 0).
@@ -107,6 +103,26 @@ def _bottom(t, y, args, **kwargs):
 
 def _liftoff(t, y, args, **kwargs):
     return y[0] - args[1].rho0
+
+
+def _phase_end(cond):
+    """A stance phase's end: `max(cond, -fallen)` up-crossing 0 (see `_phase`)."""
+    def end(t, y, args, **kwargs):
+        return jnp.maximum(cond(t, y, args), -_fallen(t, y, args))
+
+    return end
+
+
+def _adaptive_phase(x0, k, hopper: Hopper, end, tol: Tolerances, saveat):
+    """Eq 10 from `x0` in adaptive Tsit5 steps at `tol` until `end` up-crosses 0."""
+    event = diffrax.Event(cond_fn=end, root_finder=optx.Newton(rtol=1e-13, atol=1e-13),
+                          direction=True)
+    return diffrax.diffeqsolve(
+        diffrax.ODETerm(_field), diffrax.Tsit5(), 0.0, PHASE_T_MAX, None, x0,
+        args=(k, hopper), saveat=saveat,
+        stepsize_controller=diffrax.PIDController(rtol=tol.rtol, atol=tol.atol),
+        event=event, max_steps=MAX_STEPS, throw=False, adjoint=tol.adjoint,
+    )
 
 
 # Jitted so that every stance phase of one kind (compression or decompression, at one
@@ -125,20 +141,11 @@ def _phase(x0, k, hopper: Hopper, cond, tol: Tolerances):
         `(x_end, code)`: `OK` when `cond` fired, `COLLISION` when the COM fell or the phase
         never ended, `SOLVER` when diffrax failed.
     """
-    def end(t, y, args, **kwargs):
-        return jnp.maximum(cond(t, y, args), -_fallen(t, y, args))
-
+    end = _phase_end(cond)
     if tol.steps:
         return fixed_phase(x0, k, hopper, end, cond, tol.steps)
 
-    event = diffrax.Event(cond_fn=end, root_finder=optx.Newton(rtol=1e-13, atol=1e-13),
-                          direction=True)
-    sol = diffrax.diffeqsolve(
-        diffrax.ODETerm(_field), diffrax.Tsit5(), 0.0, PHASE_T_MAX, None, x0,
-        args=(k, hopper),
-        stepsize_controller=diffrax.PIDController(rtol=tol.rtol, atol=tol.atol),
-        event=event, max_steps=MAX_STEPS, throw=False, adjoint=tol.adjoint,
-    )
+    sol = _adaptive_phase(x0, k, hopper, end, tol, diffrax.SaveAt(t1=True))
     x_end = sol.ys[-1]
     fell = -_fallen(0.0, x_end, (k, hopper)) >= cond(0.0, x_end, (k, hopper))
     fired = sol.event_mask
@@ -247,13 +254,38 @@ def compress(th_td, v_td, kc, hopper: Hopper, tol: Tolerances = STRIDE_TOL):
         `(x_b, code)`: polar state `(rho, th, rho', th')` at the bottom. A leg whose length
         would grow at touchdown (`rho' >= 0`) is never loaded: `COLLISION`.
     """
-    rhod, vth = polar_state(th_td, v_td)
-    loaded = rhod < 0
-    # An unloaded leg still runs a harmless dummy solve so that vmap stays uniform.
-    x0 = jnp.stack([hopper.rho0, th_td, jnp.where(loaded, rhod, -1.0),
-                    jnp.where(loaded, vth / hopper.rho0, 0.0)])
+    x0, loaded = _touchdown_state(th_td, v_td, hopper)
     x_b, code = _phase(x0, kc, hopper, _bottom, tol)
     return x_b, jnp.where(loaded, code, COLLISION)
+
+
+def _touchdown_state(th_td, v_td, hopper: Hopper):
+    """The polar state at touchdown and whether the leg is loaded (`rho' < 0`). An unloaded
+    leg gets a harmless dummy state, so that its solve stays uniform under vmap."""
+    rhod, vth = polar_state(th_td, v_td)
+    loaded = rhod < 0
+    x0 = jnp.stack([hopper.rho0, th_td, jnp.where(loaded, rhod, -1.0),
+                    jnp.where(loaded, vth / hopper.rho0, 0.0)])
+    return x0, loaded
+
+
+def sampled_stance(th_td, v_td, kc, kd, hopper: Hopper, n: int, tol: Tolerances = STRIDE_TOL):
+    """Both stance phases as `stance` integrates them, each sampled at `n` instants evenly
+    spaced in time from its start to its end (dense output; for drawing).
+
+    Returns:
+        `(states, loaded)`: `(2 n, 4)` polar states, compression then decompression, and
+        whether the leg is loaded at touchdown (if not, the states are a dummy's).
+    """
+    x0, loaded = _touchdown_state(th_td, v_td, hopper)
+
+    def sampled(x, k, cond):
+        saveat = diffrax.SaveAt(t1=True, dense=True)
+        sol = _adaptive_phase(x, k, hopper, _phase_end(cond), tol, saveat)
+        return jax.vmap(sol.evaluate)(jnp.linspace(0.0, 1.0, n) * sol.ts[-1])
+
+    comp = sampled(x0, kc, _bottom)
+    return jnp.concatenate([comp, sampled(comp[-1], kd, _liftoff)]), loaded
 
 
 def decompress(x_b, kd, hopper: Hopper, tol: Tolerances = STRIDE_TOL):
