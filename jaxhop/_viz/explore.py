@@ -194,7 +194,7 @@ def explore(plan: Plan, apex0=None, *, models: Sequence[str] = ("bhop",),
     }
     fig.tight_layout()
     centre = np.asarray(plan.table().centre)
-    half = 0.5 * plan.templates.seg_length
+    half = plan.templates.half_length
 
     def run(values):
         settings = RunSettings(model=values["model"], controller=values["controller"])
