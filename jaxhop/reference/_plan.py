@@ -1,4 +1,4 @@
-"""The whole plan, as the paper's algorithm runs it: situate, instantiate pair by pair, build
+"""The whole plan, as the paper's algorithm runs it: situate, instantiate every pair, build
 the prepares matrix, sample safety, deploy by backchaining (Figs. 7, 10-12)."""
 
 from __future__ import annotations
@@ -16,8 +16,8 @@ from ._policies import (
     candidate_pairs,
     goal_policy_margin,
     pair_box,
-    pair_goal,
-    situate_goal,
+    pair_goals,
+    situate_goals,
     world_boxes,
 )
 from ._regions import template_boxes
@@ -63,24 +63,13 @@ def situate(terrain: Terrain, templates: Templates | None = None,
 
 
 def instantiate(sit: Situation, rows, cols, gf_world, d_world, n_v=16, n_z=16):
-    """Goal of every candidate pair, one pair at a time.
+    """Goal of every candidate pair (`pair_goals`: each pair's grid, as `pair_goal` takes
+    it alone, computed for many pairs at once).
 
     Returns:
         `(found, goals, margin, margin_d)` per pair.
     """
-    nt = sit.templates.n
-    n = rows.size
-    found = np.zeros(n, bool)
-    goals = np.zeros((n, 3))
-    margin = np.zeros(n)
-    margin_d = np.zeros(n)
-    for p in range(n):
-        i, j = int(rows[p]), int(cols[p])
-        f, g, m, md = pair_goal(sit, i % nt, i // nt, j % nt, j // nt,
-                                pair_box(gf_world, d_world, i, j), (n_v, n_z))
-        if f:
-            found[p], goals[p], margin[p], margin_d[p] = True, g, m, md
-    return found, goals, margin, margin_d
+    return pair_goals(sit, rows, cols, pair_box(gf_world, d_world, rows, cols), (n_v, n_z))
 
 
 def goal_policies(sit: Situation, goal):
@@ -93,19 +82,25 @@ def goal_policies(sit: Situation, goal):
     return ok, margin
 
 
-def prepares_and_robustness(sit: Situation, goals, half_width=PROBE_HALF_WIDTH):
-    """`P[a, s] = [Zg(a) in D(s)]` (CSR) and the safety-sampling score of every goal."""
+def prepares_and_robustness(sit: Situation, goals, half_width=PROBE_HALF_WIDTH, batch=4096):
+    """`P[a, s] = [Zg(a) in D(s)]` (CSR) and the safety-sampling score of every goal,
+    `batch` goals at a time."""
     n = goals.shape[0]
-    indptr = [0]
-    indices = []
+    rows, cols = [], []
     robustness = np.zeros(n)
-    for a in range(n):
-        ids, inside, robustness[a] = situate_goal(sit, goals[a], half_width)
-        cols = np.unique(ids[inside])
-        indices.append(cols)
-        indptr.append(indptr[-1] + cols.size)
-    indices = np.concatenate(indices) if indices else np.zeros(0, np.int64)
-    p = sp.csr_matrix((np.ones(indices.size, bool), indices, np.asarray(indptr)),
+    for start in range(0, n, batch):
+        ids, inside, robustness[start:start + batch] = situate_goals(
+            sit, goals[start:start + batch], half_width)
+        r, c = np.nonzero(inside)
+        rows.append(r + start)
+        cols.append(ids[r, c])
+    rows = np.concatenate(rows) if rows else np.zeros(0, np.int64)
+    cols = np.concatenate(cols) if cols else np.zeros(0, np.int64)
+    # One entry per (goal, situated policy), columns sorted within each row.
+    key = np.unique(rows.astype(np.int64) * sit.n_situated + cols)
+    indices = key % sit.n_situated
+    indptr = np.concatenate([[0], np.cumsum(np.bincount(key // sit.n_situated, minlength=n))])
+    p = sp.csr_matrix((np.ones(indices.size, bool), indices, indptr),
                       shape=(n, sit.n_situated))
     return p, robustness
 

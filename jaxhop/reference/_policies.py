@@ -160,16 +160,78 @@ def _axis_margin(mask, spacing, axis):
     return (np.minimum(idx - prev_out, next_out - idx) - 0.5) * spacing
 
 
-def _line_margin(line, i, spacing):
-    """`_axis_margin` of a 1-D mask at one index."""
-    if not line[i]:
-        return -0.5 * spacing
-    out = np.nonzero(~line)[0]
-    before = out[out < i]
-    after = out[out > i]
-    prev_out = before[-1] if before.size else -1
-    next_out = after[0] if after.size else line.size
-    return (min(i - prev_out, next_out - i) - 0.5) * spacing
+def _pair_grids(sit: Situation, ti, tj, seg_i, seg_j, boxes, grid):
+    """The goal grids of pairs of templates `(ti, tj)` on segments `seg_i[p]`, `seg_j[p]`
+    (all on the same two blocks), `boxes[p]` their box overlaps: every cell of `Gf(i) ∩
+    D(j)` with its margin, shaped `(pairs, n_v, n_z)`, computed cell by cell with the same
+    arithmetic as a single pair's grid."""
+    n_v, n_z = grid
+    hp = sit.hopper
+    reg_i, reg_j = sit.regions[ti], sit.regions[tj]
+    centre = sit.segs.centre
+    py_i, h_i = centre[seg_i, 0][:, None, None], centre[seg_i, 1][:, None]
+    py_j, h_j = centre[seg_j, 0][:, None, None], centre[seg_j, 1][:, None]
+    b_i, b_j = sit.segs.block[seg_i[0]], sit.segs.block[seg_j[0]]
+    rho0 = hp.rho0
+    z0, z1 = boxes[:, 0, 0][:, None], boxes[:, 0, 1][:, None]
+    v0, v1 = boxes[:, 1, 0][:, None], boxes[:, 1, 1][:, None]
+    dv, dz = (v1 - v0) / n_v, (z1 - z0) / n_z
+    vs = v0 + (np.arange(n_v) + 0.5) * dv
+    zs = z0 + (np.arange(n_z) + 0.5) * dz
+
+    gzl, gzh = (b.reshape(vs.shape) for b in reg_i.goal_height_bounds(vs.reshape(-1)))
+    dzl, dzh = reg_j.domain_height_bounds(vs)
+    gzl, gzh = gzl + h_i + rho0, gzh + h_i + rho0
+    dzl, dzh = dzl + h_j + rho0, dzh + h_j + rho0
+    dzl = np.maximum(dzl, h_j + rho0 + 1e-6)  # D(j) needs zr > 0 strictly
+    zl, zh = np.maximum(gzl, dzl)[:, :, None], np.minimum(gzh, dzh)[:, :, None]
+    V, Z = vs[:, :, None], zs[:, None, :]
+    in_z = (Z >= zl) & (Z <= zh)
+
+    h_i, h_j = h_i[:, :, None], h_j[:, :, None]
+    g_lo, g_hi = reg_i.goal_position_bounds(V, Z - h_i - rho0)
+    g_lo, g_hi = g_lo + py_i, g_hi + py_i
+    shift_j = V * safe_sqrt(2.0 * (Z - h_j - rho0) / hp.g)
+    l = sit.templates.half_length
+    d_lo, d_hi = py_j - shift_j - l, py_j - shift_j + l
+    c_lo, c_hi = sit.descent_y_bounds(V, Z, b_j)
+    a_lo, a_hi = sit.ascent_y_bounds(V, Z, b_i)
+    dom_lo, dom_hi = np.maximum(d_lo, c_lo), np.minimum(d_hi, c_hi)
+    y_lo = np.maximum(np.maximum(g_lo, a_lo), dom_lo)
+    y_hi = np.minimum(np.minimum(g_hi, a_hi), dom_hi)
+
+    mask = in_z & (y_hi > y_lo)
+    dz3, dv3 = dz[:, :, None], dv[:, :, None]
+    margin = np.minimum(np.minimum(0.5 * (y_hi - y_lo), np.minimum(Z - zl, zh - Z)),
+                        np.minimum(_axis_margin(mask, dz3, 2), _axis_margin(mask, dv3, 1)))
+    margin = np.where(mask, np.round(margin, 9), -INF)  # ties: first cell wins (as in JAX)
+    return {"vs": vs, "zs": zs, "dv": dv, "dz": dz, "dzl": dzl, "dzh": dzh, "mask": mask,
+            "margin": margin, "y_lo": y_lo, "y_hi": y_hi, "dom_lo": dom_lo, "dom_hi": dom_hi,
+            "v_ok": (vs >= reg_j.t["v_lo"]) & (vs <= reg_j.t["v_hi"])}
+
+
+def _grid_goals(g):
+    """Best cell of each pair's grid (`_pair_grids`): `(found, goals, margin, margin_d)`,
+    `margin_d` the goal's margin inside `D(j)` alone (eq 34)."""
+    n_pairs, n_v, n_z = g["margin"].shape
+    p = np.arange(n_pairs)
+    found = g["mask"].any(axis=(1, 2))
+    best = np.argmax(g["margin"].reshape(n_pairs, -1), axis=1)
+    a, b = best // n_z, best % n_z
+    vs, zs, dzl, dzh = g["vs"], g["zs"], g["dzl"], g["dzh"]
+    dom_lo, dom_hi = g["dom_lo"], g["dom_hi"]
+    y_g = 0.5 * (g["y_lo"][p, a, b] + g["y_hi"][p, a, b])
+    z_b, dzl_a, dzh_a = zs[p, b], dzl[p, a], dzh[p, a]
+    # The goal's row (fixed ydot, every z) and column (fixed z, every ydot) in D(j).
+    row = ((zs >= dzl_a[:, None]) & (zs <= dzh_a[:, None])
+           & (dom_hi[p, a] > dom_lo[p, a]) & g["v_ok"][p, a][:, None])
+    col = ((z_b[:, None] >= dzl) & (z_b[:, None] <= dzh) & (dom_hi[p, :, b] > dom_lo[p, :, b])
+           & g["v_ok"])
+    line = np.minimum(_axis_margin(row, g["dz"], 1)[p, b], _axis_margin(col, g["dv"], 1)[p, a])
+    margin_d = np.minimum(np.minimum(y_g - dom_lo[p, a, b], dom_hi[p, a, b] - y_g),
+                          np.minimum(np.minimum(z_b - dzl_a, dzh_a - z_b), line))
+    goals = np.stack([y_g, z_b, vs[p, a]], axis=1)
+    return found, goals, g["margin"][p, a, b], margin_d
 
 
 def pair_goal(sit: Situation, ti, seg_i, tj, seg_j, box, grid=(16, 16), margins=False):
@@ -183,64 +245,44 @@ def pair_goal(sit: Situation, ti, seg_i, tj, seg_j, box, grid=(16, 16), margins=
     Returns:
         `(found, goal, margin, margin_d)`.
     """
-    n_v, n_z = grid
-    hp = sit.hopper
-    reg_i, reg_j = sit.regions[ti], sit.regions[tj]
-    py_i, h_i = sit.segs.centre[seg_i]
-    py_j, h_j = sit.segs.centre[seg_j]
-    b_i, b_j = sit.segs.block[seg_i], sit.segs.block[seg_j]
-    rho0 = hp.rho0
-    (z0, z1), (v0, v1) = box
-    dv, dz = (v1 - v0) / n_v, (z1 - z0) / n_z
-    vs = v0 + (np.arange(n_v) + 0.5) * dv
-    zs = z0 + (np.arange(n_z) + 0.5) * dz
-
-    empty = (False, None, -INF, -INF)
-    gzl, gzh = reg_i.goal_height_bounds(vs)
-    dzl, dzh = reg_j.domain_height_bounds(vs)
-    gzl, gzh = gzl + h_i + rho0, gzh + h_i + rho0
-    dzl, dzh = dzl + h_j + rho0, dzh + h_j + rho0
-    dzl = np.maximum(dzl, h_j + rho0 + 1e-6)  # D(j) needs zr > 0 strictly
-    zl, zh = np.maximum(gzl, dzl)[:, None], np.minimum(gzh, dzh)[:, None]
-    V, Z = vs[:, None], zs[None, :]
-    in_z = (Z >= zl) & (Z <= zh)
-    if not (in_z.any() or margins):
-        return empty
-
-    g_lo, g_hi = reg_i.goal_position_bounds(V, Z - h_i - rho0)
-    g_lo, g_hi = g_lo + py_i, g_hi + py_i
-    shift_j = V * safe_sqrt(2.0 * (Z - h_j - rho0) / hp.g)
-    l = sit.templates.half_length
-    d_lo, d_hi = py_j - shift_j - l, py_j - shift_j + l
-    # Screen (as the JAX path does): the collision clauses only shrink the y extents.
-    if not ((in_z & (np.minimum(g_hi, d_hi) > np.maximum(g_lo, d_lo))).any() or margins):
-        return empty
-    c_lo, c_hi = sit.descent_y_bounds(V, Z, b_j)
-    a_lo, a_hi = sit.ascent_y_bounds(V, Z, b_i)
-    dom_lo, dom_hi = np.maximum(d_lo, c_lo), np.minimum(d_hi, c_hi)
-    y_lo = np.maximum(np.maximum(g_lo, a_lo), dom_lo)
-    y_hi = np.minimum(np.minimum(g_hi, a_hi), dom_hi)
-
-    mask = in_z & (y_hi > y_lo)
-    if not (mask.any() or margins):
-        return empty
-    margin = np.minimum(np.minimum(0.5 * (y_hi - y_lo), np.minimum(Z - zl, zh - Z)),
-                        np.minimum(_axis_margin(mask, dz, 1), _axis_margin(mask, dv, 0)))
-    margin = np.where(mask, np.round(margin, 9), -INF)  # ties: first cell wins (as in JAX)
+    g = _pair_grids(sit, ti, tj, np.array([seg_i]), np.array([seg_j]),
+                    np.asarray(box, float)[None], grid)
     if margins:
-        return margin, vs, zs
-    a, b = np.unravel_index(np.argmax(margin), margin.shape)
+        return g["margin"][0], g["vs"][0], g["zs"][0]
+    found, goals, margin, margin_d = _grid_goals(g)
+    if not found[0]:
+        return False, None, -INF, -INF
+    return True, goals[0], float(margin[0]), float(margin_d[0])
 
-    y_g = 0.5 * (y_lo[a, b] + y_hi[a, b])
-    t_j = reg_j.t
-    z_ok = (zs >= dzl[a]) & (zs <= dzh[a])
-    v_ok = (vs >= t_j["v_lo"]) & (vs <= t_j["v_hi"])
-    row = z_ok & (dom_hi[a] > dom_lo[a]) & v_ok[a]
-    col = (zs[b] >= dzl) & (zs[b] <= dzh) & (dom_hi[:, b] > dom_lo[:, b]) & v_ok
-    margin_d = min(min(y_g - dom_lo[a, b], dom_hi[a, b] - y_g),
-                   min(min(zs[b] - dzl[a], dzh[a] - zs[b]),
-                       min(_line_margin(row, b, dz), _line_margin(col, a, dv))))
-    return True, np.array([y_g, zs[b], vs[a]]), float(margin[a, b]), float(margin_d)
+
+def pair_goals(sit: Situation, rows, cols, boxes, grid=(16, 16), batch=2048):
+    """`pair_goal` of every candidate pair `(rows[p], cols[p])` (situated ids), `boxes[p]`
+    their box overlaps: the pairs of each template pair on each pair of blocks are one
+    array computation, at most `batch` pairs at a time.
+
+    Returns:
+        `(found, goals, margin, margin_d)` per pair (`goals` zero where none is found).
+    """
+    nt, nb = sit.templates.n, sit.terrain.n_blocks
+    n = rows.size
+    found = np.zeros(n, bool)
+    goals = np.zeros((n, 3))
+    margin = np.zeros(n)
+    margin_d = np.zeros(n)
+    ti, si, tj, sj = rows % nt, rows // nt, cols % nt, cols // nt
+    group = ((ti * nt + tj) * nb + sit.segs.block[si]) * nb + sit.segs.block[sj]
+    order = np.argsort(group, kind="stable")
+    cuts = np.flatnonzero(np.diff(group[order])) + 1
+    for members in np.split(order, cuts):
+        for k in range(0, members.size, batch):
+            idx = members[k:k + batch]
+            f, g, m, md = _grid_goals(_pair_grids(sit, ti[idx[0]], tj[idx[0]], si[idx], sj[idx],
+                                                  boxes[idx], grid))
+            found[idx] = f
+            goals[idx] = np.where(f[:, None], g, 0.0)
+            margin[idx] = np.where(f, m, 0.0)
+            margin_d[idx] = np.where(f, md, 0.0)
+    return found, goals, margin, margin_d
 
 
 #: Slack (m) in `y` of the goal itself where it lies on an end of the segment: a goal on a
@@ -276,19 +318,30 @@ _OFFSETS = np.stack(np.meshgrid(*[np.arange(-1.0, 2.0)] * 3, indexing="ij"), -1)
 CENTRE_PROBE = 13  # offset (0, 0, 0)
 
 
-def situate_goal(sit: Situation, goal, half_width):
-    """Domain membership of a goal and its safety-sampling score in one pass.
+def situate_goals(sit: Situation, goals, half_width):
+    """Domain membership of goals and their safety-sampling scores in one pass.
 
     Returns:
-        `(ids, inside, robustness)`: the candidate situated ids and which contain the goal
-        (a row of the prepares matrix P), and the fraction of the 27 probes
+        `(ids, inside, robustness)`: per goal, the candidate situated ids and which contain
+        the goal (a row of the prepares matrix P), and the fraction of the 27 probes
         `goal + {-1, 0, 1}^3 * half_width` held by some situated domain.
     """
-    probes = goal + _OFFSETS * half_width
+    goals = np.atleast_2d(np.asarray(goals, float))
+    probes = (goals[:, None, :] + _OFFSETS * half_width).reshape(-1, 3)
     ids, inside = sit.candidate_situated(probes)
-    held = inside.any(axis=1)
+    n_probes = _OFFSETS.shape[0]
+    ids = ids.reshape(goals.shape[0], n_probes, -1)
+    inside = inside.reshape(goals.shape[0], n_probes, -1)
+    held = inside.any(axis=2)
     # `n * (1 / 27)`, not `n / 27`: the rounding XLA uses for the JAX path's mean.
-    return ids[CENTRE_PROBE], inside[CENTRE_PROBE], float(held.sum()) * (1.0 / held.size)
+    robustness = held.sum(axis=1).astype(float) * (1.0 / n_probes)
+    return ids[:, CENTRE_PROBE], inside[:, CENTRE_PROBE], robustness
+
+
+def situate_goal(sit: Situation, goal, half_width):
+    """`situate_goals` of one goal: `(ids, inside, robustness)`."""
+    ids, inside, robustness = situate_goals(sit, goal, half_width)
+    return ids[0], inside[0], float(robustness[0])
 
 
 def world_boxes(sit: Situation, gf_rel, d_rel):
@@ -313,6 +366,6 @@ def candidate_pairs(gf_world, d_world):
 
 
 def pair_box(gf_world, d_world, i, j):
-    """Overlap of the two boxes in `(z, ydot)`: `(2, 2)`."""
+    """Overlap of the two boxes in `(z, ydot)`: `(2, 2)` (`(n, 2, 2)` for index arrays)."""
     return np.stack([np.maximum(gf_world[i, 1:, 0], d_world[j, 1:, 0]),
-                     np.minimum(gf_world[i, 1:, 1], d_world[j, 1:, 1])], axis=1)
+                     np.minimum(gf_world[i, 1:, 1], d_world[j, 1:, 1])], axis=-1)
