@@ -34,7 +34,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..._core.batching import pow2_at_least, run_once
+from ..._core.batching import run_once
 from ..._core.params import Hopper
 from ..._core.paths import atomic_write, cache_dir
 from ..._core.programs import jit
@@ -425,14 +425,15 @@ _controls_batch = jit(jax.vmap(lambda a, g, h, th, kc, hopper: clipped_controls(
 
 
 def deadbeat_slips(apex, goal, h, hopper: Hopper, table=None, accept: float = ACCEPT_C2,
-                   min_batch: int = 8):
+                   chunk: int = 32):
     """`deadbeat_slip` on a batch of targets over flat footholds, with the table's stages as
     passes over the batch: every target runs the table's best start, only those it misses
     (C2 above `accept`) run the other table starts, only those still missing run the
     multi-start solver's starts.
-    Each pass is split over the local devices, one chunk each, padded to a power of two
-    (at least `min_batch`), so a few shapes serve every batch, and no lane waits for a
-    solve it does not need.
+    Every pass runs in chunks of `chunk` targets (the last one padded), dealt to the local
+    devices in turn: one compiled program serves every pass and every batch size (a
+    program of this solver takes 20-30 s to compile on a 2-core CPU), and no lane waits
+    for a solve it does not need. On an accelerator a larger `chunk` fills the device.
 
     Arguments:
         apex, goal: `(n, 3)`; h: `(n,)` or a scalar. table: default the cached
@@ -456,9 +457,7 @@ def deadbeat_slips(apex, goal, h, hopper: Hopper, table=None, accept: float = AC
     for first, last in _PASSES:
         if todo.size == 0:
             break
-        share = -(-todo.size // len(jax.local_devices()))
-        size = max(min_batch, pow2_at_least(share))
-        out = chunked_map(_pass_fn(), todo.size, size, (apex[todo], goal[todo], h[todo]),
+        out = chunked_map(_pass_fn(), todo.size, chunk, (apex[todo], goal[todo], h[todo]),
                           (first, last, hopper, table))
         better = out[2] < c2[todo]
         th[todo] = np.where(better, out[0], th[todo])
