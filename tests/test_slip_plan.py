@@ -137,7 +137,7 @@ def test_runs_read_the_foot_lead_only_so_planning_settings_share_one_controller(
     # Two SLIP plans that differ in eq 35's constants and the reversal / direction rules
     # run on one compiled controller: their run-time templates have one tree structure
     # (static fields included), and the foot lead of eq 37 they give is the planning
-    # templates' own. BHop templates are their own.
+    # templates' own. BHop plans run on the same controller, with a zero lead.
     base = templates_for("slip")
     other = paper_templates().for_slip(SlipAdjust.printed(v_max=base.slip.v_max))
     assert jax.tree_util.tree_structure(base) != jax.tree_util.tree_structure(other)
@@ -148,8 +148,9 @@ def test_runs_read_the_foot_lead_only_so_planning_settings_share_one_controller(
         assert np.array_equal(np.asarray(foot_lead(ydot, r)), np.asarray(foot_lead(ydot, t)))
         assert np.array_equal(np.asarray(foot_lead(ydot, r)),
                               ydot * math.sin(0.2) / base.slip.v_max)
-    bhop = templates_for("bhop")
-    assert bhop.for_runs() is bhop
+    bhop = templates_for("bhop").for_runs()
+    assert jax.tree_util.tree_structure(bhop) == jax.tree_util.tree_structure(runs[0])
+    assert np.array_equal(np.asarray(foot_lead(ydot, bhop)), np.zeros_like(ydot))
 
 
 def test_templates_for_rejects_unknown_model():

@@ -27,8 +27,12 @@ from .templates import Templates
 def foot_lead(ydot, tmpl: Templates):
     """How far ahead of the COM's touchdown point the planned foot lands (m).
 
-    0 for BHop; `Y` of eq 37 for templates adjusted for the SLIP model (`Templates.slip`).
+    0 for BHop; `Y` of eq 37 for templates adjusted for the SLIP model (`Templates.slip`),
+    from its traced coefficients in the run-time controller's templates (`Templates.lead`).
     """
+    if tmpl.lead is not None:
+        length, sin_theta, speed_max = tmpl.lead[0], tmpl.lead[1], tmpl.lead[2]
+        return length * (ydot * sin_theta / speed_max)
     return 0.0 * ydot if tmpl.slip is None else tmpl.slip.lead(ydot)
 
 

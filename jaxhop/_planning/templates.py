@@ -111,17 +111,16 @@ class SlipAdjust:
             del out["rho0"], out["g"]
         return out
 
-    def lead_only(self) -> SlipAdjust:
-        """The fields the controller reads at run time, the foot lead's (eq 37: `theta_avg`,
-        `v_max`, `rho0`, `g`), the others at their defaults. Eq 35's limits and the
-        direction rules shape the plan only; a controller keyed by them would be compiled
-        once per plan setting (`Templates.for_runs`)."""
-        return SlipAdjust(theta_avg=self.theta_avg, v_max=self.v_max, rho0=self.rho0, g=self.g)
+    def lead_coefficients(self) -> tuple[float, float, float]:
+        """`(L, sin(theta_avg), V |v_max|)`: `lead(ydot)` is `L (ydot sin(theta_avg) /
+        (V |v_max|))` (eq 37), the run-time controller's foot lead (`Templates.for_runs`)."""
+        length, speed = self.scales()
+        return length, math.sin(self.theta_avg), speed * abs(self.v_max)
 
     def lead(self, ydot):
         """`Y` of eq 37: how far ahead of the BHop foot the SLIP foot lands (m)."""
-        length, speed = self.scales()
-        return length * (ydot * math.sin(self.theta_avg) / (speed * abs(self.v_max)))
+        length, sin_theta, speed_max = self.lead_coefficients()
+        return length * (ydot * sin_theta / speed_max)
 
     def h(self, v):
         """`h(v)` of eq 35 (m), `v` in m/s of the hopper."""
@@ -139,6 +138,9 @@ class Templates(eqx.Module):
         e_lo, e_hi: apex energy range `RE` (J) relative to the virtual ground.
         dy_lo, dy_hi, th_lo, th_hi, k_lo, k_hi: control limits `U` (m, rad, -).
         seg_length: ground segment length `2l` (m).
+        slip: the SLIP adjustments of section VII-A (`SlipAdjust`; `None` for BHop).
+        lead: only in the run-time controller's templates (`for_runs`): the foot lead of
+            eq 37 as traced coefficients (`SlipAdjust.lead_coefficients`), zero for BHop.
     """
 
     v_lo: jnp.ndarray
@@ -153,6 +155,7 @@ class Templates(eqx.Module):
     k_hi: jnp.ndarray
     seg_length: float = eqx.field(static=True, default=SEGMENT_LENGTH)
     slip: SlipAdjust | None = eqx.field(static=True, default=None)
+    lead: jnp.ndarray | None = None
 
     @property
     def n(self) -> int:
@@ -165,7 +168,7 @@ class Templates(eqx.Module):
     def row(self, i: int) -> Templates:
         """Template `i` alone (scalar leaves), for functions written for one template."""
         return Templates(*(getattr(self, f)[i] for f in _FIELDS), seg_length=self.seg_length,
-                         slip=self.slip)
+                         slip=self.slip, lead=self.lead)
 
     def for_slip(self, adjust: SlipAdjust | None = None, hopper=None) -> Templates:
         """The same templates with the SLIP adjustments of section VII-A (eqs 35-37).
@@ -187,12 +190,15 @@ class Templates(eqx.Module):
 
     def for_runs(self) -> Templates:
         """These templates as the run-time controller reads them: the SLIP adjustments
-        reduced to the foot lead (`SlipAdjust.lead_only`; the domains of eq 36 and the
-        recoveries use it), so plans built with other planning-only settings run on one
-        compiled controller."""
-        if self.slip is None:
+        reduced to the foot lead of eq 37 (the domains of eq 36 and the recoveries use it),
+        held as traced coefficients (`lead`). BHop templates get a zero lead. Every plan of
+        one template count and segment length, BHop or SLIP, whatever its planning
+        settings, then runs on one compiled controller."""
+        if self.lead is not None:
             return self
-        return dataclasses.replace(self, slip=self.slip.lead_only())
+        coeff = (1.0, 0.0, 1.0) if self.slip is None else self.slip.lead_coefficients()
+        return Templates(*(getattr(self, f) for f in _FIELDS), seg_length=self.seg_length,
+                         lead=jnp.asarray(coeff, dtype=float))
 
     def as_array(self) -> np.ndarray:
         return np.stack([np.asarray(getattr(self, f)) for f in _FIELDS], axis=1)
