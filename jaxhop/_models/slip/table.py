@@ -52,7 +52,7 @@ from .kernels import (
     trial_stride,
 )
 
-_FORMAT = 1
+_FORMAT = 2
 
 
 class TableGrid(eqx.Module):
@@ -99,15 +99,22 @@ def _entry(zeta, nu, eps, th, s, tol):
     return jnp.where(ok, jnp.stack([nxt[0], nxt[2]]), jnp.nan)
 
 
-def build_table(grid: TableGrid = DEFAULT_GRID, chunk: int = 4096,
+def build_table(grid: TableGrid = DEFAULT_GRID, chunk: int | None = None,
                 progress: bool = True) -> np.ndarray:
     """The table's values on `grid` (`(nz, nv, ne, nth, ns, 2)`), computed with batched
-    diffrax strides of a unit hopper at the deadbeat's search tolerances, on every device."""
+    diffrax strides of a unit hopper at the deadbeat's search tolerances, on every device.
+
+    `chunk`: strides per batch (default 256 on a CPU, 4 096 on an accelerator). A vmapped
+    stride runs until the slowest of its batch ends; on a 2-core CPU batches of 256 build
+    the table about 3x faster than batches of 4 096 (0.4-0.6 s against 1.5-1.6 s per
+    16 384 strides, jax 0.10.2)."""
     from ..._core.batching import chunked_map
     from ..._core.progress import Progress
 
     axes = grid.axes()
     mesh = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 5)
+    if chunk is None:
+        chunk = 256 if jax.default_backend() == "cpu" else 4096
     fn = jit(jax.vmap(lambda x: _entry(*x, SEARCH_TOL)))
     with Progress(mesh.shape[0], "SLIP table", "strides", enabled=progress) as bar:
         out = chunked_map(fn, mesh.shape[0], chunk, (mesh,), bar=bar)
