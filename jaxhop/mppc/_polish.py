@@ -70,8 +70,11 @@ def _polish(robot, x, z, lo, hi, n, front, back, height, margin_v, half, wind=No
     p = x.shape[0]
     idx = jnp.arange(p)
     frac = jnp.linspace(-1.0, 1.0, K)
-    for sweep in range(N_SWEEPS):
-        width = half * 0.5**sweep
+
+    # One sweep per turn of a loop, so the pair solver is compiled for the two parities
+    # only, not for every sweep; each sweep halves the window.
+    def sweep(_, carry):
+        x, width = carry
         for parity in (1, 0):
             i = idx[1::2] if parity else idx[2::2]
             active = (i >= 1) & (i < n)
@@ -89,6 +92,9 @@ def _polish(robot, x, z, lo, hi, n, front, back, height, margin_v, half, wind=No
             best = jnp.argmin(cost, axis=1)
             new = jnp.take_along_axis(cand, best[:, None], axis=1)[:, 0]
             x = x.at[i].set(jnp.where(active, new, x[i]))
+        return x, 0.5 * width
+
+    x, _ = jax.lax.fori_loop(0, N_SWEEPS, sweep, (x, jnp.asarray(half, x.dtype)))
     ok, t, v, tan = pair(x[:-1], z[:-1], x[1:], z[1:])
     return x, ok, t, v, tan
 
