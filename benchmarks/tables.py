@@ -101,8 +101,8 @@ def twin() -> list[str]:
     rows = []
     for i, (name, d) in enumerate(zip(files, data), 1):
         jax = f"jax {d['jax_version']}" if "jax_version" in d else CONDITIONS[name]
-        load_note = f", {d['conditions']}" if "conditions" in d else ""
-        out.append(f"{i}. `results/{name}`: {d['device']}, {jax}{load_note}, "
+        conditions = f", {d['conditions']}" if "conditions" in d else ""
+        out.append(f"{i}. `results/{name}`: {d['device']}, {jax}{conditions}, "
                    f"{'subsampled twin' if d['quick'] else 'full sizes'}.")
         later = {b["name"] for e in data[i:] for b in e["benchmarks"]}
         for b in d["benchmarks"]:

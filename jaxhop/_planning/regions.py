@@ -21,7 +21,7 @@ import jax.numpy as jnp
 
 from .._core.params import Hopper
 from .._models.bhop import safe_sqrt, stance_controls
-from .templates import Templates
+from .templates import Templates, eq37_lead
 
 
 def foot_lead(ydot, tmpl: Templates):
@@ -31,8 +31,7 @@ def foot_lead(ydot, tmpl: Templates):
     from its traced coefficients in the run-time controller's templates (`Templates.lead`).
     """
     if tmpl.lead is not None:
-        length, sin_theta, speed_max = tmpl.lead[0], tmpl.lead[1], tmpl.lead[2]
-        return length * (ydot * sin_theta / speed_max)
+        return eq37_lead(ydot, tmpl.lead)
     return 0.0 * ydot if tmpl.slip is None else tmpl.slip.lead(ydot)
 
 

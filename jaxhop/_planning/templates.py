@@ -18,6 +18,13 @@ from .._core.terrain import SEGMENT_LENGTH
 _FIELDS = ("v_lo", "v_hi", "e_lo", "e_hi", "dy_lo", "dy_hi", "th_lo", "th_hi", "k_lo", "k_hi")
 
 
+def eq37_lead(ydot, coefficients):
+    """`Y` of eq 37 from `coefficients = (L, sin(theta_avg), V |v_max|)` (a tuple, or the
+    traced array `Templates.lead`): `L (ydot sin(theta_avg) / (V |v_max|))`."""
+    length, sin_theta, speed_max = coefficients[0], coefficients[1], coefficients[2]
+    return length * (ydot * sin_theta / speed_max)
+
+
 @dataclasses.dataclass(frozen=True)
 class SlipAdjust:
     """SLIP adjustments of BHop templates (section VII-A, eqs 35-37), at any hopper size.
@@ -119,8 +126,7 @@ class SlipAdjust:
 
     def lead(self, ydot):
         """`Y` of eq 37: how far ahead of the BHop foot the SLIP foot lands (m)."""
-        length, sin_theta, speed_max = self.lead_coefficients()
-        return length * (ydot * sin_theta / speed_max)
+        return eq37_lead(ydot, self.lead_coefficients())
 
     def h(self, v):
         """`h(v)` of eq 35 (m), `v` in m/s of the hopper."""
