@@ -43,3 +43,24 @@ os.environ["XLA_FLAGS"] = " ".join(_flags + [
 # of the worker (`jaxhop sweep` does, before its first computation), and every later test
 # would compile its programs once per device.
 jax.devices()
+
+
+# The test files, slowest first (seconds on the 2-core CPU, most of it compiling SLIP
+# programs), which pytest-xdist deals to its workers in this order (`--dist loadfile
+# --no-loadscope-reorder` in pyproject.toml): the long files start at once and the short
+# ones fill the end, so the workers finish together. Files not named follow in their
+# collection order.
+SLOWEST_FIRST = [
+    "test_parkour.py", "test_slip_plan.py", "test_notebooks.py", "test_slip.py",
+    "test_slip_table.py", "test_reference.py", "test_adaptive.py", "test_plan.py",
+    "test_regions.py", "test_reference_slip.py", "test_mppc_disturbed.py", "test_devices.py",
+    "test_checkpoint.py", "test_repro.py", "test_cli.py", "test_parkour_recovery.py",
+    "test_properties.py", "test_pool.py", "test_explore.py", "test_parkour_notebook.py",
+    "test_api.py", "test_foothold.py", "test_distributed.py", "test_malformed.py",
+    "test_goals.py", "test_mppc_plan.py", "test_mujoco.py",
+]
+
+
+def pytest_collection_modifyitems(config, items):
+    rank = {name: i for i, name in enumerate(SLOWEST_FIRST)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # stable: file order kept

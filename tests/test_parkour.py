@@ -171,7 +171,10 @@ def small_plans():
     hop = leg_hopper()
     tm = leg_templates(hop)
     cps = course_plans(course, hop, tm, grid=GRID, rebuild=2)
-    fulls = [build_course_plan(m, tm, hop, grid=GRID) for m in cps.maps]
+    # The first plan is a full build; the snapshots' full rebuilds are those `course_plans`
+    # made for its own comparison.
+    fulls = [cps.plans[0], *cps.rebuilt]
+    assert len(fulls) == len(cps.maps)
     return course, hop, cps, fulls
 
 

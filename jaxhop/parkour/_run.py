@@ -64,6 +64,7 @@ class CoursePlans:
     rebuild_s: list
     rebuild_cpu_s: list
     rebuild_equal: list = dataclasses.field(default_factory=list)
+    rebuilt: list = dataclasses.field(default_factory=list)
 
     def index_at(self, k: int) -> int:
         return max(i for i, s in enumerate(self.starts) if s <= k)
@@ -73,9 +74,10 @@ def course_plans(course: Course, hopper: Hopper, templates, *, grid: PairGrid = 
                  rebuild: int = 0, log=None, align: bool = True) -> CoursePlans:
     """Full plan for the first environment, incremental updates for the snapshots.
 
-    The first `rebuild` snapshots' plans are also built in full (timed), for the
-    update-vs-rebuild comparison; `CoursePlans.rebuild_equal` records whether the full
-    rebuild gave the same deployment (same policies, goals and order) as the update.
+    The first `rebuild` snapshots' plans are also built in full (timed, kept in
+    `CoursePlans.rebuilt`), for the update-vs-rebuild comparison;
+    `CoursePlans.rebuild_equal` records whether the full rebuild gave the same deployment
+    (same policies, goals and order) as the update.
     `align` is `course_map`'s option (default: segments flush with the floor lattice).
     """
     envs = [(0, course.environment)] + list(course.snapshots)
@@ -87,7 +89,7 @@ def course_plans(course: Course, hopper: Hopper, templates, *, grid: PairGrid = 
         log(f"{course.name}: full plan {build_s:.1f} s "
             f"({plans[0].stats['n_instantiated']} policies)")
     del c0
-    update_s, update_cpu, rebuild_s, rebuild_cpu, equal = [], [], [], [], []
+    update_s, update_cpu, rebuild_s, rebuild_cpu, equal, rebuilt = [], [], [], [], [], []
     for m in maps[1:]:
         t0, c0 = time.perf_counter(), time.process_time()
         plans.append(build_course_plan(m, templates, hopper, grid=grid, previous=plans[-1]))
@@ -99,12 +101,13 @@ def course_plans(course: Course, hopper: Hopper, templates, *, grid: PairGrid = 
             rebuild_s.append(time.perf_counter() - t0)
             rebuild_cpu.append(time.process_time() - c0)
             equal.append(same_deployment(full, plans[-1]))
+            rebuilt.append(full)
         if log:
             log(f"{course.name}: update {update_s[-1]:.2f} s"
                 + (f", rebuild {rebuild_s[-1]:.2f} s" if len(rebuild_s) == len(update_s)
                    else ""))
     return CoursePlans(course, [k for k, _ in envs], maps, plans, build_s, update_s,
-                       update_cpu, rebuild_s, rebuild_cpu, equal)
+                       update_cpu, rebuild_s, rebuild_cpu, equal, rebuilt)
 
 
 def same_deployment(a: CoursePlan, b: CoursePlan) -> bool:
