@@ -1,5 +1,6 @@
 """SLIP adjustments of BHop plans (Arslan & Saranli 2012, section VII-A, eqs 35-37)."""
 
+import functools
 import math
 
 import jax
@@ -275,6 +276,28 @@ def test_a_stride_moving_backward_before_and_after_never_moves_forward():
     assert np.any(leg_templates().as_array()[:, 0] < 0)
 
 
+@functools.cache
+def _decide_program():
+    """`decide_slip` with recovery, compiled once for this file's tests: on tables as runs
+    read them (`bucketed`: padded to shape buckets, unnamed maps, the templates' foot lead
+    and segment length traced) every plan of the reference map's size and every hopper
+    size share the program."""
+    from jaxhop._control.decisions import decide_slip
+
+    return jax.jit(lambda z, tb, hop: decide_slip(z, tb, hop, recover=True))
+
+
+def _decide(apex, tables, hopper):
+    return _decide_program()(apex, tables, hopper)
+
+
+def _run_tables(tables):
+    """`tables` as runs read them (`bucketed`)."""
+    from jaxhop._planning.plan import bucketed
+
+    return bucketed(tables, tables.terrain)[0]
+
+
 def _perceived_plan(templates):
     """The plan of `templates` on the perceived map of `--noise ground` seed 0, and the true
     map."""
@@ -326,7 +349,7 @@ def test_a_slip_miss_that_stays_put_is_decided_again():
     # over 7-9.6 m of this map's domains meets the premise.)
     import dataclasses
 
-    from jaxhop._control.decisions import SLIP_ACCEPT, decide_slip, first_match
+    from jaxhop._control.decisions import SLIP_ACCEPT, first_match
     from jaxhop._execution.batches import run_batch
     from jaxhop._models.slip.deadbeat import DeadbeatSearch, deadbeat_slip
     from jaxhop._models.slip.kernels import SEARCH_TOL
@@ -353,7 +376,7 @@ def test_a_slip_miss_that_stays_put_is_decided_again():
     assert miss >= float(np.max(np.abs(apex - goal) / scale))
     assert int(match(pred, tables)[1]) == int(sit)
 
-    _, _, chosen, recovered = decide_slip(apex, tables, HOPPER, recover=True)
+    _, _, chosen, recovered = _decide(apex, _run_tables(tables), HOPPER)
     assert int(chosen) != int(inst) and bool(recovered)
     # The default stride limit, so that the run shares the compiled pool step of the other
     # runs on this map.
@@ -446,7 +469,7 @@ def test_a_slip_decision_for_a_small_leg_is_the_reference_decision_in_froude_uni
     # Froude-scaled). The acceptance of a candidate's predicted miss is part of it:
     # unscaled (0.05 m on a 0.19 m leg) the leg accepts first candidates that miss by up to
     # 26 % of its leg length, which the reference hopper rejects (5 %).
-    from jaxhop._control.decisions import decide_slip, in_global_domain
+    from jaxhop._control.decisions import in_global_domain
     from jaxhop._execution.batches import sweep_grid
     from jaxhop._models.slip.kernels import SEARCH_TOL
     from jaxhop._models.slip.stride import slip_stride
@@ -457,16 +480,15 @@ def test_a_slip_decision_for_a_small_leg_is_the_reference_decision_in_froude_uni
     speed = math.sqrt(g_ratio * length)
     stiff = (leg.m * leg.g / leg.rho0) / (HOPPER.m * HOPPER.g / HOPPER.rho0)
     tables = reference_slip_plan.tables(slip=True)
-    small = _froude_tables(tables, leg)
+    tables, small = _run_tables(tables), _run_tables(_froude_tables(tables, leg))
     grid = sweep_grid(reference_slip_plan.terrain)
     inside = grid[np.asarray(in_global_domain(grid, reference_slip_plan.tables(), HOPPER))]
     states = inside[np.linspace(0, inside.shape[0] - 1, 24).round().astype(int)]
-    decide = jax.jit(lambda z, tb, hop: decide_slip(z, tb, hop, recover=True))
     to_leg = np.array([length, length, speed])
     reached = 0
     for z in states:
-        f0, u0, a0, r0 = decide(jnp.asarray(z), tables, HOPPER)
-        f1, u1, a1, r1 = decide(jnp.asarray(z * to_leg), small, leg)
+        f0, u0, a0, r0 = _decide(jnp.asarray(z), tables, HOPPER)
+        f1, u1, a1, r1 = _decide(jnp.asarray(z * to_leg), small, leg)
         assert (bool(f0), int(a0), bool(r0)) == (bool(f1), int(a1), bool(r1)), z
         pred, _, _ = slip_stride(jnp.asarray(z), u0, tables.terrain, HOPPER, 0.0, SEARCH_TOL)
         if np.max(np.abs(np.asarray(pred) - np.asarray(tables.goals[a0]))) < 1e-4:
@@ -508,3 +530,18 @@ def test_goal_policies_reach_a_goal_at_rest_on_its_own_segment_only():
     strict = dataclasses.replace(slip, slip=dataclasses.replace(slip.slip,
                                                                   keep_direction=False))
     assert reached(k + 1, strict)  # eq 35 alone allows it
+
+
+def test_situating_a_bhop_plan_after_a_slip_plan_uses_the_bhop_regions():
+    # Situating caches each template set's boxes of Gf and the domain (once per process).
+    # The SLIP templates have eq 33's rows but other regions (eqs 35-36): a BHop plan built
+    # after a SLIP plan in one process got the SLIP boxes, and 10-14 % more candidate pairs
+    # than the NumPy twin.
+    from jaxhop._planning.policies import template_boxes
+    from jaxhop._planning.stages import relative_boxes
+
+    slip, bhop = templates_for("slip"), templates_for("bhop")
+    for t in (slip, bhop):
+        for got, want in zip(relative_boxes(t, HOPPER), template_boxes(t, HOPPER)):
+            assert np.array_equal(got, np.asarray(want))
+    assert not np.array_equal(relative_boxes(slip, HOPPER)[1], relative_boxes(bhop, HOPPER)[1])

@@ -25,7 +25,7 @@ from .plan import PROBE_HALF_WIDTH, Plan, build_plan, check_goal
 from .policies import PairGrid
 from .templates import Templates, paper_templates
 
-_FORMAT = 3
+_FORMAT = 4
 _DEFAULT_GRID = PairGrid()
 
 

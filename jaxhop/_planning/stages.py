@@ -95,9 +95,10 @@ _BOX_CACHE: dict = {}
 
 
 def relative_boxes(templates: Templates, hopper: Hopper):
-    """`template_boxes` as NumPy arrays, computed once per templates and hopper."""
-    key = (templates.as_array().tobytes(), templates.seg_length, float(hopper.m),
-           float(hopper.g), float(hopper.rho0))
+    """`template_boxes` as NumPy arrays, computed once per templates (their SLIP
+    adjustments included: they shift and bound the regions) and hopper."""
+    key = (templates.as_array().tobytes(), templates.seg_length, templates.slip,
+           float(hopper.m), float(hopper.g), float(hopper.rho0))
     if key not in _BOX_CACHE:
         _BOX_CACHE[key] = tuple(np.asarray(x) for x in template_boxes(templates, hopper))
     return _BOX_CACHE[key]
