@@ -85,7 +85,7 @@ def recovery_candidates(apex, tables: PlanTables, hopper: Hopper):
     h = tables.terrain.heights
     t_fall = safe_sqrt(2.0 * (apex[1] - h - hopper.rho0) / hopper.g)
     y = apex[0] + apex[2] * t_fall + foot_lead(apex[2], tm)
-    k = jnp.floor((y - tb.block_left) / tm.seg_length).astype(jnp.int32)
+    k = jnp.floor((y - tb.block_left) / tm.segment).astype(jnp.int32)
     seg = tb.block_first + jnp.clip(k, 0, jnp.maximum(tb.block_count - 1, 0))
     seg = jnp.where(tb.block_count > 0, seg, 0)
     ids = (seg[:, None] * tm.n + jnp.arange(tm.n)[None, :]).reshape(-1)

@@ -82,8 +82,9 @@ def bucketed(tables: PlanTables, true_terrain: Terrain) -> tuple[PlanTables, Ter
     instantiated policies to a power of two. A SLIP controller takes minutes to compile;
     with these buckets a perceived map, or another terrain of about the size of the
     built-in ones, runs on the program compiled for the first, from a BHop or a SLIP plan
-    (the maps lose their names, which are static fields; the templates keep only the foot
-    lead runs read, traced, `Templates.for_runs`)."""
+    (the maps lose their names, which are static fields; the templates keep only what runs
+    read of the SLIP adjustments and the segments, the foot lead and the segment length,
+    traced: `Templates.for_runs`)."""
     nb = bucket(max(tables.terrain.n_blocks, true_terrain.n_blocks) + 1, 32)
     ns = bucket(tables.table.seg_block.shape[0], 64)
     ni = pow2_at_least(tables.goals.shape[0])

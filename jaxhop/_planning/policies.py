@@ -97,7 +97,7 @@ def candidate_situated(apex, table: SituatedTable, templates: Templates, terrain
     lead = foot_lead(apex[2], templates)
     code, block, _, y_foot, _ = touchdown(apex, jnp.stack([lead, -hopper.rho0]), terrain,
                                           hopper)
-    seg_len = templates.seg_length
+    seg_len = templates.segment
     k = jnp.floor((y_foot - table.block_left[block]) / seg_len).astype(jnp.int32)
     n_on = table.block_count[block]
     local = jnp.clip(k + jnp.arange(-1, 2), 0, jnp.maximum(n_on - 1, 0))

@@ -143,10 +143,12 @@ class Templates(eqx.Module):
         v_lo, v_hi: apex velocity range `RV` (m/s).
         e_lo, e_hi: apex energy range `RE` (J) relative to the virtual ground.
         dy_lo, dy_hi, th_lo, th_hi, k_lo, k_hi: control limits `U` (m, rad, -).
-        seg_length: ground segment length `2l` (m).
+        seg_length: ground segment length `2l` (m); `None` in the run-time controller's
+            templates, which carry it as `seg`.
         slip: the SLIP adjustments of section VII-A (`SlipAdjust`; `None` for BHop).
         lead: only in the run-time controller's templates (`for_runs`): the foot lead of
             eq 37 as traced coefficients (`SlipAdjust.lead_coefficients`), zero for BHop.
+        seg: only in the run-time controller's templates: the segment length, traced.
     """
 
     v_lo: jnp.ndarray
@@ -159,22 +161,29 @@ class Templates(eqx.Module):
     th_hi: jnp.ndarray
     k_lo: jnp.ndarray
     k_hi: jnp.ndarray
-    seg_length: float = eqx.field(static=True, default=SEGMENT_LENGTH)
+    seg_length: float | None = eqx.field(static=True, default=SEGMENT_LENGTH)
     slip: SlipAdjust | None = eqx.field(static=True, default=None)
     lead: jnp.ndarray | None = None
+    seg: jnp.ndarray | None = None
 
     @property
     def n(self) -> int:
         return int(self.v_lo.shape[0])
 
     @property
-    def half_length(self) -> float:
-        return 0.5 * self.seg_length
+    def segment(self):
+        """The segment length `2l`: `seg_length`, or traced `seg` in the run-time
+        templates."""
+        return self.seg_length if self.seg is None else self.seg
+
+    @property
+    def half_length(self):
+        return 0.5 * self.segment
 
     def row(self, i: int) -> Templates:
         """Template `i` alone (scalar leaves), for functions written for one template."""
         return Templates(*(getattr(self, f)[i] for f in _FIELDS), seg_length=self.seg_length,
-                         slip=self.slip, lead=self.lead)
+                         slip=self.slip, lead=self.lead, seg=self.seg)
 
     def for_slip(self, adjust: SlipAdjust | None = None, hopper=None) -> Templates:
         """The same templates with the SLIP adjustments of section VII-A (eqs 35-37).
@@ -197,14 +206,16 @@ class Templates(eqx.Module):
     def for_runs(self) -> Templates:
         """These templates as the run-time controller reads them: the SLIP adjustments
         reduced to the foot lead of eq 37 (the domains of eq 36 and the recoveries use it),
-        held as traced coefficients (`lead`). BHop templates get a zero lead. Every plan of
-        one template count and segment length, BHop or SLIP, whatever its planning
-        settings, then runs on one compiled controller."""
+        held as traced coefficients (`lead`), and the segment length traced (`seg`). BHop
+        templates get a zero lead. Every plan of one template count, BHop or SLIP, of any
+        hopper size and whatever its planning settings, then runs on one compiled
+        controller."""
         if self.lead is not None:
             return self
         coeff = (1.0, 0.0, 1.0) if self.slip is None else self.slip.lead_coefficients()
-        return Templates(*(getattr(self, f) for f in _FIELDS), seg_length=self.seg_length,
-                         lead=jnp.asarray(coeff, dtype=float))
+        return Templates(*(getattr(self, f) for f in _FIELDS), seg_length=None,
+                         lead=jnp.asarray(coeff, dtype=float),
+                         seg=jnp.asarray(self.seg_length, dtype=float))
 
     def as_array(self) -> np.ndarray:
         return np.stack([np.asarray(getattr(self, f)) for f in _FIELDS], axis=1)
