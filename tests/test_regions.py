@@ -8,7 +8,13 @@ import pytest
 from jaxhop._core.params import Hopper
 from jaxhop._core.terrain import builtin_terrain, make_terrain
 from jaxhop._models.flight import OK, touchdown
-from jaxhop._planning.policies import ascent_y_bounds, descent_y_bounds
+from jaxhop._planning.policies import (
+    ascent_times,
+    ascent_y_bounds,
+    descent_times,
+    descent_y_bounds,
+    tall,
+)
 from jaxhop._planning.regions import (
     feasible_goal_contains,
     feasible_goal_contains_brute,
@@ -132,3 +138,33 @@ def test_collision_free_bounds_match_simulated_descent_and_rise():
     well = make_terrain([(0.0, 1.0, 1.1), (1.0, 2.0, 0.0), (2.0, 3.0, 1.1)])
     lo, hi = ascent_y_bounds(0.5, 1.9, 1, well, HOP)
     assert float(hi) < 2.0 + 0.5 * np.sqrt(2 * 0.9 / HOP.g) and float(lo) > 1.0
+
+
+def test_bounds_on_a_grid_equal_the_bounds_of_each_cell():
+    """The grid form of the collision bounds (block axis in front, fall and rise times per
+    grid column) gives, cell by cell, the bounds of that one apex (to rounding: op by op,
+    the two forms round differently in the last bit); and where no block stands `rho0`
+    above another (`tall`), the rise's bound never binds."""
+    well = make_terrain([(0.0, 1.0, 1.1), (1.0, 2.0, 0.0), (2.0, 2.5, 0.4), (2.5, 3.0, 1.1)])
+    V, Z = jnp.meshgrid(jnp.linspace(-2.0, 2.0, 5), jnp.linspace(1.05, 2.6, 6), indexing="ij")
+    lead = 0.01 * V
+    for block in range(well.n_blocks):
+        c_lo, c_hi = descent_y_bounds(V, Z, block, well, HOP, lead,
+                                      descent_times(Z[:1], well, HOP))
+        a_lo, a_hi = ascent_y_bounds(V, Z, block, well, HOP, ascent_times(Z[:1], block, well,
+                                                                        HOP))
+        for a in range(V.shape[0]):
+            for b in range(V.shape[1]):
+                one = descent_y_bounds(V[a, b], Z[a, b], block, well, HOP, lead[a, b])
+                np.testing.assert_allclose([c_lo[a, b], c_hi[a, b]], one, rtol=0, atol=1e-12)
+                one = ascent_y_bounds(V[a, b], Z[a, b], block, well, HOP)
+                np.testing.assert_allclose([a_lo[a, b], a_hi[a, b]], one, rtol=0, atol=1e-12)
+    assert tall(well, HOP)
+    bound = ascent_y_bounds(V, Z, 1, well, HOP)
+    assert np.isfinite(np.asarray(bound)).any()  # the wells' walls bind the rise from below
+
+    flat_ish = builtin_terrain("reference")
+    assert not tall(flat_ish, HOP)
+    for block in range(flat_ish.n_blocks):
+        lo, hi = ascent_y_bounds(V, Z + 0.5, block, flat_ish, HOP)
+        assert np.all(np.asarray(lo) == -np.inf) and np.all(np.asarray(hi) == np.inf)

@@ -172,47 +172,87 @@ def candidate_pairs(gf_world: np.ndarray, d_world: np.ndarray, chunk: int = 2048
 # --- collision-free y bounds ---------------------------------------------------------------
 
 
-def descent_y_bounds(ydot, z, block, terrain: Terrain, hopper: Hopper, lead=0.0):
+def _blocks(terrain: Terrain, ndim: int):
+    """The terrain's `(heights, starts, ends)` shaped `(n_blocks, 1, ..., 1)` to broadcast
+    against apex arrays of `ndim` dimensions (a block axis in front)."""
+    shape = (-1,) + (1,) * ndim
+    return (terrain.heights.reshape(shape), terrain.starts.reshape(shape),
+            terrain.ends.reshape(shape))
+
+
+def descent_times(z, terrain: Terrain, hopper: Hopper):
+    """`(n_blocks, *z.shape)` times the foot takes to fall from apex height `z` to each
+    block's top."""
+    heights, _, _ = _blocks(terrain, jnp.ndim(z))
+    return safe_sqrt(2.0 * (z - hopper.rho0 - heights) / hopper.g)
+
+
+def descent_y_bounds(ydot, z, block, terrain: Terrain, hopper: Hopper, lead=0.0, t_h=None):
     """Apex `y` interval from which the descending foot meets no block before `block`.
 
     For `ydot > 0` a higher block `b` left of the landing block is cleared iff the foot has
     passed its right end `e_b` when it falls to `H_b`: `y > e_b - ydot t_H`; mirrored for
     `ydot < 0`. The apex must also lie over the map. A foot `lead` ahead of the COM shifts
     the first two bounds by `-lead` (SLIP-adjusted templates, eq 37).
+
+    `ydot`, `z` and `lead` may be arrays of one shape (a grid of apexes); `t_h`: their
+    `descent_times`, where the caller has them (they depend on `z` alone).
     """
-    h = terrain.heights[block]
-    t_h = safe_sqrt(2.0 * (z - hopper.rho0 - terrain.heights) / hopper.g)
-    higher = terrain.heights > h
-    left = higher & (terrain.ends <= terrain.starts[block]) & (ydot > 0)
-    right = higher & (terrain.starts >= terrain.ends[block]) & (ydot < 0)
-    lo = jnp.max(jnp.where(left, terrain.ends - ydot * t_h - lead, -jnp.inf))
-    hi = jnp.min(jnp.where(right, terrain.starts - ydot * t_h - lead, jnp.inf))
+    ndim = max(jnp.ndim(ydot), jnp.ndim(z), jnp.ndim(lead))
+    heights, starts, ends = _blocks(terrain, ndim)
+    t_h = descent_times(z, terrain, hopper) if t_h is None else t_h
+    higher = heights > terrain.heights[block]
+    left = higher & (ends <= terrain.starts[block]) & (ydot > 0)
+    right = higher & (starts >= terrain.ends[block]) & (ydot < 0)
+    lo = jnp.max(jnp.where(left, ends - ydot * t_h - lead, -jnp.inf), axis=0)
+    hi = jnp.min(jnp.where(right, starts - ydot * t_h - lead, jnp.inf), axis=0)
     return jnp.maximum(lo, terrain.starts[0]), jnp.minimum(hi, terrain.ends[-1])
 
 
-def ascent_y_bounds(ydot, z, block, terrain: Terrain, hopper: Hopper):
+def ascent_times(z, block, terrain: Terrain, hopper: Hopper):
+    """`(t_up, t_h)`: the rise time from `block`'s virtual ground to the apex at height `z`,
+    and `(n_blocks, *z.shape)` times the rise takes to reach each block's top (`t_up` for
+    blocks above `z`)."""
+    heights, _, _ = _blocks(terrain, jnp.ndim(z))
+    z_lo = terrain.heights[block] + hopper.rho0
+    t_up = safe_sqrt(2.0 * (z - z_lo) / hopper.g)
+    zdot = hopper.g * t_up
+    rise = heights - z_lo
+    t_h = jnp.where(heights < z, (zdot - safe_sqrt(zdot**2 - 2.0 * hopper.g * rise)) / hopper.g,
+                    t_up)
+    return t_up, t_h
+
+
+def ascent_y_bounds(ydot, z, block, terrain: Terrain, hopper: Hopper, times=None):
     """Goal apex `y` interval for which the COM, lifting off from `block`, meets no block.
 
     The COM sweeps at `h + rho0` from the touchdown (on `block`) to the liftoff point
     `y - ydot t_up`, then rises. A block `b` to the right with `H_b > h + rho0` is cleared iff
     the COM is still left of `s_b` when it has risen to `H_b` (or at the apex, if it never
     does): `y_lo + max(ydot, 0) t_H < s_b`; mirrored on the left.
+
+    `ydot` and `z` may be arrays of one shape; `times`: their `ascent_times`, where the
+    caller has them (they depend on `z` alone).
     """
-    z_lo = terrain.heights[block] + hopper.rho0
-    t_up = safe_sqrt(2.0 * (z - z_lo) / hopper.g)
-    zdot = hopper.g * t_up
-    rise = terrain.heights - z_lo
-    t_h = jnp.where(terrain.heights < z,
-                    (zdot - safe_sqrt(zdot**2 - 2.0 * hopper.g * rise)) / hopper.g, t_up)
-    higher = rise > 0
+    ndim = max(jnp.ndim(ydot), jnp.ndim(z))
+    heights, starts, ends = _blocks(terrain, ndim)
+    t_up, t_h = ascent_times(z, block, terrain, hopper) if times is None else times
+    higher = heights - (terrain.heights[block] + hopper.rho0) > 0
     y_lo_shift = ydot * t_up
-    right = higher & (terrain.starts >= terrain.ends[block])
-    left = higher & (terrain.ends <= terrain.starts[block])
-    hi = jnp.min(jnp.where(right, terrain.starts + y_lo_shift - jnp.maximum(ydot, 0) * t_h,
-                           jnp.inf))
-    lo = jnp.max(jnp.where(left, terrain.ends + y_lo_shift - jnp.minimum(ydot, 0) * t_h,
-                           -jnp.inf))
+    right = higher & (starts >= terrain.ends[block])
+    left = higher & (ends <= terrain.starts[block])
+    hi = jnp.min(jnp.where(right, starts + y_lo_shift - jnp.maximum(ydot, 0) * t_h, jnp.inf),
+                 axis=0)
+    lo = jnp.max(jnp.where(left, ends + y_lo_shift - jnp.minimum(ydot, 0) * t_h, -jnp.inf),
+                 axis=0)
     return lo, hi
+
+
+def tall(terrain: Terrain, hopper: Hopper) -> bool:
+    """Whether some block stands higher than another's virtual ground `h + rho0`: the test
+    `ascent_y_bounds` makes of every block (`higher`), in the same arithmetic."""
+    heights = np.asarray(terrain.heights)
+    return bool(np.any(heights[None, :] - (heights[:, None] + float(hopper.rho0)) > 0))
 
 
 # --- goal choice on a grid ----------------------------------------------------------------
@@ -240,20 +280,56 @@ class PairGrid(eqx.Module):
     n_z: int = eqx.field(static=True, default=16)
 
 
+def _velocity_grid(v0, v1, grid: PairGrid):
+    """The `n_v` cell centres of a pair's velocity range `[v0, v1]`, and their spacing."""
+    dv = (v1 - v0) / grid.n_v
+    return v0 + (jnp.arange(grid.n_v) + 0.5) * dv, dv
+
+
+def _height_limits(vs, tmpl_i, tmpl_j, hopper: Hopper):
+    """`(4, n_v)`: relative `z` limits `(lo, hi)` of `Gf(i)`, then of `D(j)`, at each `ydot`."""
+    gzl, gzh = jax.vmap(goal_height_bounds, (0, None, None))(vs, tmpl_i, hopper)
+    dzl, dzh = jax.vmap(domain_height_bounds, (0, None, None))(vs, tmpl_j, hopper)
+    return jnp.stack([gzl, gzh, dzl, dzh])
+
+
+def pair_limits(templates: Templates, hopper: Hopper, v_box, grid: PairGrid):
+    """`(n_t, n_t, 4, n_v)`: `_height_limits` of every template pair `(i, j)` on its velocity
+    grid over `v_box[i, j]` (the overlap of `Gf(i)`'s and `D(j)`'s `ydot` ranges).
+
+    A pair's velocity grid, and so these limits, depend on its two templates alone, not on
+    where they are situated: computed once per template pair, not once per candidate pair
+    (the most costly part of screening them).
+    """
+    nt = templates.n
+
+    def one(ti, tj):
+        vs, _ = _velocity_grid(v_box[ti, tj, 0], v_box[ti, tj, 1], grid)
+        return _height_limits(vs, templates.row(ti), templates.row(tj), hopper)
+
+    ti, tj = jnp.meshgrid(jnp.arange(nt), jnp.arange(nt), indexing="ij")
+    return jax.vmap(jax.vmap(one))(ti, tj)
+
+
 def _pair_grid(ti, seg_i, tj, seg_j, box, table: SituatedTable, templates: Templates,
-               hopper: Hopper, grid: PairGrid):
-    """The `(ydot, z)` grid of a pair with each region's `z` limits and `y` extents."""
+               hopper: Hopper, grid: PairGrid, limits=None):
+    """The `(ydot, z)` grid of a pair with each region's `z` limits and `y` extents.
+
+    `limits`: the `pair_limits` of the templates, where the caller has them.
+    """
     tmpl_i, tmpl_j = templates.row(ti), templates.row(tj)
     py_i, h_i = table.centre[seg_i, 0], table.centre[seg_i, 1]
     py_j, h_j = table.centre[seg_j, 0], table.centre[seg_j, 1]
     rho0 = hopper.rho0
     (z0, z1), (v0, v1) = box[0], box[1]
-    dv, dz = (v1 - v0) / grid.n_v, (z1 - z0) / grid.n_z
-    vs = v0 + (jnp.arange(grid.n_v) + 0.5) * dv
+    vs, dv = _velocity_grid(v0, v1, grid)
+    dz = (z1 - z0) / grid.n_z
     zs = z0 + (jnp.arange(grid.n_z) + 0.5) * dz
 
-    gzl, gzh = jax.vmap(goal_height_bounds, (0, None, None))(vs, tmpl_i, hopper)
-    dzl, dzh = jax.vmap(domain_height_bounds, (0, None, None))(vs, tmpl_j, hopper)
+    if limits is None:
+        gzl, gzh, dzl, dzh = _height_limits(vs, tmpl_i, tmpl_j, hopper)
+    else:
+        gzl, gzh, dzl, dzh = limits[ti, tj]
     gzl, gzh = gzl + h_i + rho0, gzh + h_i + rho0
     dzl, dzh = dzl + h_j + rho0, dzh + h_j + rho0
     # D(j) needs zr > 0 strictly; stay a hair above the virtual ground.
@@ -268,13 +344,14 @@ def _pair_grid(ti, seg_i, tj, seg_j, box, table: SituatedTable, templates: Templ
 
 
 def pair_may_intersect(ti, seg_i, tj, seg_j, box, table: SituatedTable, templates: Templates,
-                       hopper: Hopper, grid: PairGrid):
+                       hopper: Hopper, grid: PairGrid, limits=None):
     """Whether `Gf(i) ∩ D(j)` has a grid cell before the collision clauses are applied.
 
     The collision clauses only shrink the `y` extents, so a pair rejected here is empty in
     `pair_goal` too; this cheap pass (no per-block work) screens the candidate pairs.
+    `limits`: as in `_pair_grid`.
     """
-    c = _pair_grid(ti, seg_i, tj, seg_j, box, table, templates, hopper, grid)
+    c = _pair_grid(ti, seg_i, tj, seg_j, box, table, templates, hopper, grid, limits)
     zl = jnp.maximum(c["gzl"], c["dzl"])[:, None]
     zh = jnp.minimum(c["gzh"], c["dzh"])[:, None]
     y_lo = jnp.maximum(c["g_lo"], c["d_lo"])
@@ -283,29 +360,38 @@ def pair_may_intersect(ti, seg_i, tj, seg_j, box, table: SituatedTable, template
 
 
 def pair_goal(ti, seg_i, tj, seg_j, box, table: SituatedTable, templates: Templates,
-              terrain: Terrain, hopper: Hopper, grid: PairGrid):
+              terrain: Terrain, hopper: Hopper, grid: PairGrid, rise: bool = True,
+              limits=None):
     """Best goal in `Gf(i) ∩ D(j)` for one candidate pair.
 
     Arguments:
         ti, tj: template indices; seg_i, seg_j: segment indices.
         box: `(2, 2)` overlap of the two boxes in `(z, ydot)` (world `z`).
+        rise: whether any block stands higher than another by more than `rho0` (`tall`);
+            without one the rise's collision clause (`ascent_y_bounds`) never binds and is
+            skipped, which leaves every result as it is.
+        limits: the templates' `pair_limits`, where the caller has them.
 
     Returns:
         `(found, goal, margin, margin_d)`: whether the intersection is non-empty, the goal
         `(y, z, ydot)` maximising the margin to the intersection's boundary, that margin, and
         the goal's margin to `∂D(j)` alone (used in the safety measure, eq 34).
     """
-    c = _pair_grid(ti, seg_i, tj, seg_j, box, table, templates, hopper, grid)
+    c = _pair_grid(ti, seg_i, tj, seg_j, box, table, templates, hopper, grid, limits)
     V, Z, dv, dz, dzl, dzh = c["V"], c["Z"], c["dv"], c["dz"], c["dzl"], c["dzh"]
     tmpl_j = templates.row(tj)
     b_i, b_j = table.seg_block[seg_i], table.seg_block[seg_j]
     zl = jnp.maximum(c["gzl"], dzl)[:, None]
     zh = jnp.minimum(c["gzh"], dzh)[:, None]
-    c_lo, c_hi = jax.vmap(jax.vmap(descent_y_bounds, (0, 0, None, None, None, 0)),
-                          (0, 0, None, None, None, 0))(V, Z, b_j, terrain, hopper,
-                                                       foot_lead(V, tmpl_j))
-    a_lo, a_hi = jax.vmap(jax.vmap(ascent_y_bounds, (0, 0, None, None, None)),
-                          (0, 0, None, None, None))(V, Z, b_i, terrain, hopper)
+    # The fall and rise times depend on the cell's height alone: once per grid column.
+    zs = Z[:1]
+    c_lo, c_hi = descent_y_bounds(V, Z, b_j, terrain, hopper, foot_lead(V, tmpl_j),
+                                  descent_times(zs, terrain, hopper))
+    if rise:
+        a_lo, a_hi = ascent_y_bounds(V, Z, b_i, terrain, hopper,
+                                     ascent_times(zs, b_i, terrain, hopper))
+    else:
+        a_lo, a_hi = -jnp.inf, jnp.inf
     dom_lo, dom_hi = jnp.maximum(c["d_lo"], c_lo), jnp.minimum(c["d_hi"], c_hi)
     y_lo = jnp.maximum(jnp.maximum(c["g_lo"], a_lo), dom_lo)
     y_hi = jnp.minimum(jnp.minimum(c["g_hi"], a_hi), dom_hi)

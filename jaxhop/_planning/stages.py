@@ -17,15 +17,17 @@ import numpy as np
 
 from .._core.batching import chunked_map
 from .._core.params import Hopper
-from .._core.programs import jit
+from .._core.programs import jit, stored_array
 from .._core.terrain import Terrain
 from .policies import (
     candidate_situated,
     goal_policy_margin,
     goal_robustness,
     pair_goal,
+    pair_limits,
     pair_may_intersect,
     situated_table,
+    tall,
     template_boxes,
 )
 from .templates import Templates
@@ -46,14 +48,15 @@ GOAL_CHUNK = 1024
 # --- one sample, vmapped at the edge ------------------------------------------------------
 
 
-def _screen(ti, si, tj, sj, boxes, table, templates, hopper, grid):
-    return jax.vmap(pair_may_intersect, (0, 0, 0, 0, 0, None, None, None, None))(
-        ti, si, tj, sj, boxes, table, templates, hopper, grid)
+def _screen(ti, si, tj, sj, boxes, table, templates, hopper, limits, grid):
+    return jax.vmap(pair_may_intersect, (0, 0, 0, 0, 0, None, None, None, None, None))(
+        ti, si, tj, sj, boxes, table, templates, hopper, grid, limits)
 
 
-def _pairs(ti, si, tj, sj, boxes, table, templates, terrain, hopper, grid):
-    return jax.vmap(pair_goal, (0, 0, 0, 0, 0, None, None, None, None, None))(
-        ti, si, tj, sj, boxes, table, templates, terrain, hopper, grid)
+def _pairs(ti, si, tj, sj, boxes, table, templates, terrain, hopper, limits, grid,
+           rise=True):
+    return jax.vmap(pair_goal, (0, 0, 0, 0, 0, None, None, None, None, None, None, None))(
+        ti, si, tj, sj, boxes, table, templates, terrain, hopper, grid, rise, limits)
 
 
 def _rows(goals, allowed, table, templates, terrain, hopper):
@@ -82,11 +85,12 @@ def _held(points, allowed, table, templates, terrain, hopper):
 
 
 screen_jit = jit(_screen, static_argnames=("grid",))
-pairs_jit = jit(_pairs, static_argnames=("grid",))
+pairs_jit = jit(_pairs, static_argnames=("grid", "rise"))
 rows_jit = jit(_rows)
 goal_jit = jit(_goal_policies)
 robustness_jit = jit(_robustness)
 held_jit = jit(_held)
+limits_jit = jit(pair_limits, static_argnames=("grid",))
 
 
 # --- situate ------------------------------------------------------------------------------
@@ -96,11 +100,21 @@ _BOX_CACHE: dict = {}
 
 def relative_boxes(templates: Templates, hopper: Hopper):
     """`template_boxes` as NumPy arrays, computed once per templates (their SLIP
-    adjustments included: they shift and bound the regions) and hopper."""
+    adjustments included: they shift and bound the regions) and hopper.
+
+    They are computed op by op, not as one compiled program: compiled, XLA rewrites some
+    divisions as multiplications and moves the boxes, and with them every pair's sampling
+    grid, in the last bits. Op by op costs a fresh process about 6 s (2-core CPU), so the
+    boxes are also kept on disk beside the compiled programs (`stored_array`).
+    """
     key = (templates.as_array().tobytes(), templates.seg_length, templates.slip,
            float(hopper.m), float(hopper.g), float(hopper.rho0))
     if key not in _BOX_CACHE:
-        _BOX_CACHE[key] = tuple(np.asarray(x) for x in template_boxes(templates, hopper))
+        both = stored_array(
+            "template-boxes",
+            lambda: np.stack([np.asarray(x) for x in template_boxes(templates, hopper)]),
+            (templates, hopper))
+        _BOX_CACHE[key] = (both[0], both[1])
     return _BOX_CACHE[key]
 
 
@@ -136,7 +150,8 @@ class Layout:
         self.n_sit = self.nt * self.n_seg
         self.t_of = np.arange(self.n_sit) % self.nt
         self.s_of = np.arange(self.n_sit) // self.nt
-        gf_rel, d_rel = relative_boxes(templates, hopper)
+        gf_rel, d_rel = self.gf_rel, self.d_rel = relative_boxes(templates, hopper)
+        self._limits = {}
         centre = np.asarray(segs.centre)
         offset = np.stack([centre[self.s_of, 0], centre[self.s_of, 1] + hopper.rho0,
                            np.zeros(self.n_sit)], 1)
@@ -144,6 +159,16 @@ class Layout:
         self.d_world = d_rel[self.t_of] + offset[:, :, None]
         self.jtable, self.jterrain = self.table, terrain
         self.jallowed = jnp.ones(self.n_sit, bool)
+
+    def limits(self, grid):
+        """The templates' `pair_limits` on `grid` (computed once per layout and grid)."""
+        if grid not in self._limits:
+            gf, d = self.gf_rel[:, None, 2], self.d_rel[None, :, 2]
+            v_box = np.stack([np.maximum(gf[..., 0], d[..., 0]),
+                              np.minimum(gf[..., 1], d[..., 1])], -1)
+            self._limits[grid] = limits_jit(self.templates, self.hopper, jnp.asarray(v_box),
+                                            grid=grid)
+        return self._limits[grid]
 
     def pair_args(self, rows, cols):
         """`(ti, si, tj, sj, boxes)` of pairs `(rows, cols)`; `boxes`: their overlap in z, ydot."""
@@ -167,7 +192,7 @@ def screen(lay: Layout, args, grid) -> np.ndarray:
     if n == 0:
         return np.zeros(0, bool)
     return lay.map(partial(screen_jit, grid=grid), n, SCREEN_CHUNK, args,
-                   (lay.jtable, lay.templates, lay.hopper))
+                   (lay.jtable, lay.templates, lay.hopper, lay.limits(grid)))
 
 
 def instantiate(lay: Layout, args, grid, bar=None):
@@ -175,8 +200,10 @@ def instantiate(lay: Layout, args, grid, bar=None):
     n = args[0].shape[0]
     if n == 0:
         return np.zeros(0, bool), np.zeros((0, 3)), np.zeros(0), np.zeros(0)
-    return lay.map(partial(pairs_jit, grid=grid), n, PAIR_CHUNK, args,
-                   (lay.jtable, lay.templates, lay.jterrain, lay.hopper), bar)
+    rise = tall(lay.jterrain, lay.hopper)
+    return lay.map(partial(pairs_jit, grid=grid, rise=rise), n, PAIR_CHUNK, args,
+                   (lay.jtable, lay.templates, lay.jterrain, lay.hopper, lay.limits(grid)),
+                   bar)
 
 
 def goal_policies(lay: Layout, goal, idx, chunk: int | None = GOAL_CHUNK):
