@@ -376,8 +376,10 @@ def test_update_dependency_tests_are_sufficient(align):
     def goals(ctx, r, c):
         box = np.stack([np.maximum(ctx.gf_world[r, 1:, 0], ctx.d_world[c, 1:, 0]),
                         np.minimum(ctx.gf_world[r, 1:, 1], ctx.d_world[c, 1:, 1])], axis=2)
-        return B._padded(lambda *a: S.pairs_jit(*a, ctx.jtable, tm, ctx.jterrain, hop, None, GRID),
-                         r.size, S.PAIR_CHUNK, ctx.t_of[r], ctx.s_of[r], ctx.t_of[c],
+        def pairs(*a):
+            return S.pairs_jit(*a, ctx.jtable, tm, ctx.jterrain, hop, None, None, GRID)
+
+        return B._padded(pairs, r.size, S.PAIR_CHUNK, ctx.t_of[r], ctx.s_of[r], ctx.t_of[c],
                          ctx.s_of[c], box, small=True)
 
     f1, g1, m1, d1 = goals(new, rows[pick], cols[pick])

@@ -6,11 +6,12 @@ import numpy as np
 import pytest
 
 from jaxhop._core.params import Hopper
-from jaxhop._core.terrain import builtin_terrain, make_terrain
+from jaxhop._core.terrain import builtin_terrain, make_terrain, random_terrain
 from jaxhop._models.flight import OK, touchdown
 from jaxhop._planning.policies import (
     ascent_times,
     ascent_y_bounds,
+    descent_sides,
     descent_times,
     descent_y_bounds,
     tall,
@@ -162,6 +163,16 @@ def test_bounds_on_a_grid_equal_the_bounds_of_each_cell():
     assert tall(well, HOP)
     bound = ascent_y_bounds(V, Z, 1, well, HOP)
     assert np.isfinite(np.asarray(bound)).any()  # the wells' walls bind the rise from below
+
+    # Only the blocks `descent_sides` lists are tested, with the same result.
+    rough = random_terrain(jax.random.PRNGKey(3), 14.0, segments_per_block=(2, 4))
+    for terrain in (well, rough):
+        sides = descent_sides(terrain)
+        assert sides.shape[2] < terrain.n_blocks or terrain is well
+        for block in range(terrain.n_blocks):
+            full = descent_y_bounds(V, Z, block, terrain, HOP, lead)
+            pruned = descent_y_bounds(V, Z, block, terrain, HOP, lead, sides=sides[block])
+            np.testing.assert_array_equal(np.asarray(full), np.asarray(pruned))
 
     flat_ish = builtin_terrain("reference")
     assert not tall(flat_ish, HOP)

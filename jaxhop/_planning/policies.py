@@ -23,6 +23,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._core.batching import bucket
 from .._core.params import Hopper
 from .._core.terrain import Segments, Terrain
 from .._models.bhop import safe_sqrt
@@ -187,7 +188,25 @@ def descent_times(z, terrain: Terrain, hopper: Hopper):
     return safe_sqrt(2.0 * (z - hopper.rho0 - heights) / hopper.g)
 
 
-def descent_y_bounds(ydot, z, block, terrain: Terrain, hopper: Hopper, lead=0.0, t_h=None):
+def descent_sides(terrain: Terrain, step: int = 4) -> np.ndarray:
+    """`(n_blocks, 2, K)`: for each landing block, the blocks that can bind its descent
+    bounds: the higher ones on its left, then those on its right (`descent_y_bounds`), each
+    padded with the landing block itself (never higher than itself). `K` is a multiple of
+    `step`, so that maps that differ a little share one shape."""
+    heights, starts, ends = (np.asarray(x) for x in (terrain.heights, terrain.starts,
+                                                     terrain.ends))
+    higher = heights[None, :] > heights[:, None]
+    sides = np.stack([higher & (ends[None, :] <= starts[:, None]),
+                      higher & (starts[None, :] >= ends[:, None])], 1)  # [b, side, c]
+    k = bucket(int(sides.sum(2).max()), step)
+    out = np.repeat(np.arange(heights.size)[:, None, None], 2, 1).repeat(k, 2)
+    for b, side, c in zip(*np.nonzero(sides)):
+        out[b, side, np.count_nonzero(sides[b, side, :c])] = c
+    return out.astype(np.int32)
+
+
+def descent_y_bounds(ydot, z, block, terrain: Terrain, hopper: Hopper, lead=0.0, t_h=None,
+                     sides=None):
     """Apex `y` interval from which the descending foot meets no block before `block`.
 
     For `ydot > 0` a higher block `b` left of the landing block is cleared iff the foot has
@@ -196,16 +215,20 @@ def descent_y_bounds(ydot, z, block, terrain: Terrain, hopper: Hopper, lead=0.0,
     the first two bounds by `-lead` (SLIP-adjusted templates, eq 37).
 
     `ydot`, `z` and `lead` may be arrays of one shape (a grid of apexes); `t_h`: their
-    `descent_times`, where the caller has them (they depend on `z` alone).
+    `descent_times`, where the caller has them (they depend on `z` alone); `sides`: the
+    landing block's row of `descent_sides`, to test only the blocks that can bind.
     """
     ndim = max(jnp.ndim(ydot), jnp.ndim(z), jnp.ndim(lead))
     heights, starts, ends = _blocks(terrain, ndim)
     t_h = descent_times(z, terrain, hopper) if t_h is None else t_h
-    higher = heights > terrain.heights[block]
-    left = higher & (ends <= terrain.starts[block]) & (ydot > 0)
-    right = higher & (starts >= terrain.ends[block]) & (ydot < 0)
-    lo = jnp.max(jnp.where(left, ends - ydot * t_h - lead, -jnp.inf), axis=0)
-    hi = jnp.min(jnp.where(right, starts - ydot * t_h - lead, jnp.inf), axis=0)
+    every = jnp.arange(terrain.n_blocks)
+    left_of, right_of = (every, every) if sides is None else (sides[0], sides[1])
+    h = terrain.heights[block]
+    left = ((heights[left_of] > h) & (ends[left_of] <= terrain.starts[block]) & (ydot > 0))
+    right = ((heights[right_of] > h) & (starts[right_of] >= terrain.ends[block]) & (ydot < 0))
+    lo = jnp.max(jnp.where(left, ends[left_of] - ydot * t_h[left_of] - lead, -jnp.inf), axis=0)
+    hi = jnp.min(jnp.where(right, starts[right_of] - ydot * t_h[right_of] - lead, jnp.inf),
+                 axis=0)
     return jnp.maximum(lo, terrain.starts[0]), jnp.minimum(hi, terrain.ends[-1])
 
 
@@ -361,7 +384,7 @@ def pair_may_intersect(ti, seg_i, tj, seg_j, box, table: SituatedTable, template
 
 def pair_goal(ti, seg_i, tj, seg_j, box, table: SituatedTable, templates: Templates,
               terrain: Terrain, hopper: Hopper, grid: PairGrid, rise: bool = True,
-              limits=None):
+              limits=None, sides=None):
     """Best goal in `Gf(i) ∩ D(j)` for one candidate pair.
 
     Arguments:
@@ -371,6 +394,7 @@ def pair_goal(ti, seg_i, tj, seg_j, box, table: SituatedTable, templates: Templa
             without one the rise's collision clause (`ascent_y_bounds`) never binds and is
             skipped, which leaves every result as it is.
         limits: the templates' `pair_limits`, where the caller has them.
+        sides: the terrain's `descent_sides`, where the caller has them.
 
     Returns:
         `(found, goal, margin, margin_d)`: whether the intersection is non-empty, the goal
@@ -386,7 +410,8 @@ def pair_goal(ti, seg_i, tj, seg_j, box, table: SituatedTable, templates: Templa
     # The fall and rise times depend on the cell's height alone: once per grid column.
     zs = Z[:1]
     c_lo, c_hi = descent_y_bounds(V, Z, b_j, terrain, hopper, foot_lead(V, tmpl_j),
-                                  descent_times(zs, terrain, hopper))
+                                  descent_times(zs, terrain, hopper),
+                                  None if sides is None else sides[b_j])
     if rise:
         a_lo, a_hi = ascent_y_bounds(V, Z, b_i, terrain, hopper,
                                      ascent_times(zs, b_i, terrain, hopper))
@@ -412,8 +437,9 @@ def pair_goal(ti, seg_i, tj, seg_j, box, table: SituatedTable, templates: Templa
     margin_d = jnp.minimum(
         jnp.minimum(y_g - dom_lo[a, b], dom_hi[a, b] - y_g),
         jnp.minimum(jnp.minimum(Z[a, b] - dzl[a], dzh[a] - Z[a, b]),
-                    jnp.minimum(_axis_margin(mask_d, dz, 1)[a, b],
-                                _axis_margin(mask_d, dv, 0)[a, b])))
+                    # Only the goal's cell's margins: along its row and its column.
+                    jnp.minimum(_axis_margin(mask_d[a][None, :], dz, 1)[0, b],
+                                _axis_margin(mask_d[:, b][:, None], dv, 0)[a, 0])))
     goal = jnp.stack([y_g, Z[a, b], V[a, b]])
     return jnp.any(mask), goal, margin[a, b], margin_d
 

@@ -21,6 +21,7 @@ from .._core.programs import jit, stored_array
 from .._core.terrain import Terrain
 from .policies import (
     candidate_situated,
+    descent_sides,
     goal_policy_margin,
     goal_robustness,
     pair_goal,
@@ -53,10 +54,10 @@ def _screen(ti, si, tj, sj, boxes, table, templates, hopper, limits, grid):
         ti, si, tj, sj, boxes, table, templates, hopper, grid, limits)
 
 
-def _pairs(ti, si, tj, sj, boxes, table, templates, terrain, hopper, limits, grid,
+def _pairs(ti, si, tj, sj, boxes, table, templates, terrain, hopper, limits, sides, grid,
            rise=True):
-    return jax.vmap(pair_goal, (0, 0, 0, 0, 0, None, None, None, None, None, None, None))(
-        ti, si, tj, sj, boxes, table, templates, terrain, hopper, grid, rise, limits)
+    return jax.vmap(pair_goal, (0, 0, 0, 0, 0) + (None,) * 8)(
+        ti, si, tj, sj, boxes, table, templates, terrain, hopper, grid, rise, limits, sides)
 
 
 def _rows(goals, allowed, table, templates, terrain, hopper):
@@ -202,8 +203,8 @@ def instantiate(lay: Layout, args, grid, bar=None):
         return np.zeros(0, bool), np.zeros((0, 3)), np.zeros(0), np.zeros(0)
     rise = tall(lay.jterrain, lay.hopper)
     return lay.map(partial(pairs_jit, grid=grid, rise=rise), n, PAIR_CHUNK, args,
-                   (lay.jtable, lay.templates, lay.jterrain, lay.hopper, lay.limits(grid)),
-                   bar)
+                   (lay.jtable, lay.templates, lay.jterrain, lay.hopper, lay.limits(grid),
+                    descent_sides(lay.jterrain)), bar)
 
 
 def goal_policies(lay: Layout, goal, idx, chunk: int | None = GOAL_CHUNK):
