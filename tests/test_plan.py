@@ -196,3 +196,24 @@ def test_padded_tables_match_as_the_plans_own_and_share_one_shape(plan):
     shapes = [jax.tree.map(jnp.shape, bucketed(p.tables(), p.terrain)) for p in (plan, other)]
     assert jax.tree.structure(shapes[0]) == jax.tree.structure(shapes[1])
     assert jax.tree.leaves(shapes[0]) == jax.tree.leaves(shapes[1])
+
+
+def test_shipped_template_boxes_are_the_ones_computed_op_by_op():
+    """The built-in templates' boxes that ship with jaxhop (read instead of computed) are
+    the boxes computed anew, and a plan reads them (bit for bit on the machine that wrote
+    them; within 1e-9 where XLA's transcendental functions round otherwise)."""
+    from jaxhop._planning.plan import templates_for
+    from jaxhop._planning.stages import SHIPPED_BOXES, box_key, computed_boxes, relative_boxes
+
+    hopper = jaxhop.Hopper()
+    with np.load(SHIPPED_BOXES) as shipped:
+        assert len(shipped.files) == 2
+        for model in ("bhop", "slip"):
+            templates = templates_for(model)
+            boxes = shipped[box_key(templates, hopper)]
+            np.testing.assert_allclose(boxes, computed_boxes(templates, hopper), rtol=0,
+                                       atol=1e-9)
+            read = relative_boxes(templates, hopper)
+            assert np.array_equal(read[0], boxes[0]) and np.array_equal(read[1], boxes[1])
+    # Another hopper has other boxes, and is not among the shipped ones.
+    assert box_key(templates_for("bhop"), jaxhop.Hopper(rho0=0.5)) not in shipped.files

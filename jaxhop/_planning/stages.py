@@ -8,6 +8,9 @@ whole plan, or a whole course of updates, compiles each stage at most twice.
 
 from __future__ import annotations
 
+import functools
+import hashlib
+import os
 import time
 from functools import partial
 
@@ -97,24 +100,50 @@ limits_jit = jit(pair_limits, static_argnames=("grid",))
 # --- situate ------------------------------------------------------------------------------
 
 _BOX_CACHE: dict = {}
+#: Template boxes of the built-in templates (eq 33's, BHop and SLIP-adjusted, 1 m hopper),
+#: as `relative_boxes` computes them (`docs/make_template_boxes.py` writes the file).
+SHIPPED_BOXES = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
+                             "data", "template_boxes.npz")
+
+
+def box_key(templates: Templates, hopper: Hopper) -> str:
+    """The name of a set of template boxes: a SHA-256 of everything they depend on (the
+    templates' rows, segment length and SLIP adjustments, which shift and bound the
+    regions, and the hopper)."""
+    key = (templates.as_array().tobytes(), float(templates.seg_length), templates.slip,
+           float(hopper.m), float(hopper.g), float(hopper.rho0))
+    return hashlib.sha256(repr(key).encode()).hexdigest()[:32]
+
+
+@functools.cache
+def _shipped() -> dict:
+    try:
+        with np.load(SHIPPED_BOXES) as f:
+            return {k: f[k] for k in f.files}
+    except OSError:
+        return {}
+
+
+def computed_boxes(templates: Templates, hopper: Hopper) -> np.ndarray:
+    """`(2, n_templates, 3, 2)`: `template_boxes`, computed op by op."""
+    return np.stack([np.asarray(x) for x in template_boxes(templates, hopper)])
 
 
 def relative_boxes(templates: Templates, hopper: Hopper):
-    """`template_boxes` as NumPy arrays, computed once per templates (their SLIP
-    adjustments included: they shift and bound the regions) and hopper.
+    """`template_boxes` as NumPy arrays, once per templates and hopper (`box_key`).
 
     They are computed op by op, not as one compiled program: compiled, XLA rewrites some
     divisions as multiplications and moves the boxes, and with them every pair's sampling
-    grid, in the last bits. Op by op costs a fresh process about 6 s (2-core CPU), so the
-    boxes are also kept on disk beside the compiled programs (`stored_array`).
+    grid, in the last bits (docs/planning.md). Op by op costs a fresh process about 6 s
+    (2-core CPU), so the built-in templates' boxes ship with jaxhop and others are kept on
+    disk beside the compiled programs (`stored_array`).
     """
-    key = (templates.as_array().tobytes(), templates.seg_length, templates.slip,
-           float(hopper.m), float(hopper.g), float(hopper.rho0))
+    key = box_key(templates, hopper)
     if key not in _BOX_CACHE:
-        both = stored_array(
-            "template-boxes",
-            lambda: np.stack([np.asarray(x) for x in template_boxes(templates, hopper)]),
-            (templates, hopper))
+        both = _shipped().get(key)
+        if both is None:
+            both = stored_array("template-boxes", lambda: computed_boxes(templates, hopper),
+                                (templates, hopper))
         _BOX_CACHE[key] = (both[0], both[1])
     return _BOX_CACHE[key]
 
@@ -143,6 +172,8 @@ class Layout:
     """
 
     chunking = "fixed"
+    #: `descent_sides` pads its block lists to a multiple of this.
+    sides_step = 4
 
     def __init__(self, terrain: Terrain, segs, templates: Templates, hopper: Hopper):
         self.terrain, self.segs, self.templates, self.hopper = terrain, segs, templates, hopper
@@ -179,9 +210,23 @@ class Layout:
         return self.t_of[rows], self.s_of[rows], self.t_of[cols], self.s_of[cols], boxes
 
     def map(self, fn, n, chunk, batched, consts=(), bar=None):
-        """`chunked_map` with this layout's chunk sizes."""
+        """`chunked_map` with this layout's chunk sizes, on `plan_devices()`."""
         size, tail = chunk_sizes(chunk, n, self.chunking)
-        return chunked_map(fn, n, size, batched, consts, tail=tail, bar=bar)
+        return chunked_map(fn, n, size, batched, consts, tail=tail, bar=bar,
+                           devices=plan_devices())
+
+
+def plan_devices():
+    """The devices the stages run on: every local device, but one on a CPU.
+
+    CPU devices share the same cores, and XLA already spreads one program over them; a
+    second CPU device only compiles every stage again (a CPU executable is bound to its
+    device): with 2 CPU devices a fresh process took 18.1 s for the `reference` plan and
+    7.9 s with a warm compilation cache, against 12.7 s and 6.9 s on one, and the warm
+    build is no faster (2-core CPU, docs/planning.md).
+    """
+    devices = jax.local_devices()
+    return devices[:1] if devices[0].platform == "cpu" else devices
 
 
 # --- the jitted stages --------------------------------------------------------------------
@@ -204,7 +249,7 @@ def instantiate(lay: Layout, args, grid, bar=None):
     rise = tall(lay.jterrain, lay.hopper)
     return lay.map(partial(pairs_jit, grid=grid, rise=rise), n, PAIR_CHUNK, args,
                    (lay.jtable, lay.templates, lay.jterrain, lay.hopper, lay.limits(grid),
-                    descent_sides(lay.jterrain)), bar)
+                    descent_sides(lay.jterrain, lay.sides_step)), bar)
 
 
 def goal_policies(lay: Layout, goal, idx, chunk: int | None = GOAL_CHUNK):
