@@ -221,9 +221,8 @@ def build_plan(
         goal, goal_sit, g_margin[goal_sit], rows[found], cols[found], goals[found],
         margin[found], margin_d[found])
     safety = S.safety(lay, sit, dg)
-    ids, inside = S.prepares_rows(lay, all_goals)
+    ids, inside, robustness = S.prepares_and_robustness(lay, all_goals, probe)
     p = situated_matrix(inside, ids, lay.n_sit)
-    laps("prepares")
     # Each goal must lie in the domain it was chosen for; drop any that do not (none should).
     keep = S.holds_own_target(p, tgt, is_goal)
     n_dropped = int((~keep).sum())
@@ -232,10 +231,9 @@ def build_plan(
                       stacklevel=2)
         sel = np.nonzero(keep)[0]
         sit, tgt, all_goals, all_margin = sit[sel], tgt[sel], all_goals[sel], all_margin[sel]
-        safety, is_goal, p = safety[sel], is_goal[sel], p[sel]
-    robustness = S.robustness(lay, all_goals, probe) if sit.size else np.ones(0)
+        safety, is_goal, p, robustness = safety[sel], is_goal[sel], p[sel], robustness[sel]
     robustness[is_goal] = 1.0
-    laps("safety_sampling")
+    laps("prepares_and_safety_sampling")
     order = deploy(p, sit, safety, is_goal, robustness, pickbest)
     laps("deploy")
     stats = S.counts(lay, n_pairs, rows.size, sit, is_goal, order, count_edges(p, sit),

@@ -490,10 +490,17 @@ def goal_robustness(goal, table: SituatedTable, templates: Templates, terrain: T
     velocity or energy range on the block it would land on, over a hole, into a wall) is a
     state from which no policy can continue.
     """
-    offsets = jnp.stack(jnp.meshgrid(*[jnp.arange(-1.0, 2.0)] * 3, indexing="ij"), -1)
-    probes = goal + offsets.reshape(-1, 3) * half_width
-
     def held(p):
         return jnp.any(candidate_situated(p, table, templates, terrain, hopper)[1])
 
-    return jnp.mean(jax.vmap(held)(probes).astype(float))
+    return jnp.mean(jax.vmap(held)(probe_box(goal, half_width)).astype(float))
+
+
+#: The goal's own place among its `probe_box` (offset `(0, 0, 0)`: the goal, bit for bit).
+PROBE_CENTRE = 13
+
+
+def probe_box(goal, half_width):
+    """`(27, 3)`: the safety-sampling probes `goal + {-1, 0, 1}^3 * half_width`."""
+    offsets = jnp.stack(jnp.meshgrid(*[jnp.arange(-1.0, 2.0)] * 3, indexing="ij"), -1)
+    return goal + offsets.reshape(-1, 3) * half_width

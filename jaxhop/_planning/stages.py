@@ -23,6 +23,7 @@ from .._core.params import Hopper
 from .._core.programs import jit, stored_array
 from .._core.terrain import Terrain
 from .policies import (
+    PROBE_CENTRE,
     candidate_situated,
     descent_sides,
     goal_policy_margin,
@@ -30,6 +31,7 @@ from .policies import (
     pair_goal,
     pair_limits,
     pair_may_intersect,
+    probe_box,
     situated_table,
     tall,
     template_boxes,
@@ -69,6 +71,19 @@ def _rows(goals, allowed, table, templates, terrain, hopper):
     return ids, inside & allowed[ids]
 
 
+def _rows_and_robustness(goals, allowed, table, templates, terrain, hopper, half_width):
+    """`_rows` and `_robustness` of each goal from one set of touchdowns: a goal is the
+    centre of its own probe box."""
+    def one(goal):
+        ids, inside = jax.vmap(candidate_situated, (0, None, None, None, None))(
+            probe_box(goal, half_width), table, templates, terrain, hopper)
+        c = PROBE_CENTRE
+        return (ids[c], inside[c] & allowed[ids[c]],
+                jnp.mean(jnp.any(inside, axis=1).astype(float)))
+
+    return jax.vmap(one)(goals)
+
+
 def _goal_policies(goal, ti, si, table, templates, terrain, hopper):
     return jax.vmap(goal_policy_margin, (None, 0, 0, None, None, None, None))(
         goal, ti, si, table, templates, terrain, hopper)
@@ -91,6 +106,7 @@ def _held(points, allowed, table, templates, terrain, hopper):
 screen_jit = jit(_screen, static_argnames=("grid",))
 pairs_jit = jit(_pairs, static_argnames=("grid", "rise"))
 rows_jit = jit(_rows)
+rows_robustness_jit = jit(_rows_and_robustness)
 goal_jit = jit(_goal_policies)
 robustness_jit = jit(_robustness)
 held_jit = jit(_held)
@@ -273,6 +289,17 @@ def prepares_rows(lay: Layout, goals):
         return np.zeros((0, 3 * lay.nt), np.int64), np.zeros((0, 3 * lay.nt), bool)
     return lay.map(rows_jit, n, ROW_CHUNK, (goals,),
                    (lay.jallowed, lay.jtable, lay.templates, lay.jterrain, lay.hopper))
+
+
+def prepares_and_robustness(lay: Layout, goals, half_width):
+    """`prepares_rows` and `robustness` of each goal, in one pass over the probes."""
+    n = goals.shape[0]
+    if n == 0:
+        return np.zeros((0, 3 * lay.nt), np.int64), np.zeros((0, 3 * lay.nt), bool), np.ones(0)
+    ids, inside, rob = lay.map(rows_robustness_jit, n, ROW_CHUNK, (goals,),
+                               (lay.jallowed, lay.jtable, lay.templates, lay.jterrain,
+                                lay.hopper, jnp.full(3, float(half_width))))
+    return ids, inside, np.array(rob, float)
 
 
 def robustness(lay: Layout, goals, half_width) -> np.ndarray:
