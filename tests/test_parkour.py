@@ -374,8 +374,7 @@ def test_update_dependency_tests_are_sufficient(align):
     pick = rng.choice(np.nonzero(~binds)[0], min(1500, int((~binds).sum())), replace=False)
 
     def goals(ctx, r, c):
-        box = np.stack([np.maximum(ctx.gf_world[r, 1:, 0], ctx.d_world[c, 1:, 0]),
-                        np.minimum(ctx.gf_world[r, 1:, 1], ctx.d_world[c, 1:, 1])], axis=2)
+        box = S.overlap(ctx.gf_world[r, 1:], ctx.d_world[c, 1:])
         def pairs(*a):
             return S.pairs_jit(*a, ctx.jtable, tm, ctx.jterrain, hop, None, None, GRID)
 

@@ -200,8 +200,8 @@ def descent_sides(terrain: Terrain, step: int = 4) -> np.ndarray:
                       higher & (starts[None, :] >= ends[:, None])], 1)  # [b, side, c]
     k = bucket(int(sides.sum(2).max()), step)
     out = np.repeat(np.arange(heights.size)[:, None, None], 2, 1).repeat(k, 2)
-    for b, side, c in zip(*np.nonzero(sides)):
-        out[b, side, np.count_nonzero(sides[b, side, :c])] = c
+    b, side, c = np.nonzero(sides)
+    out[b, side, (np.cumsum(sides, 2) - 1)[b, side, c]] = c  # in block order on each side
     return out.astype(np.int32)
 
 
@@ -221,8 +221,7 @@ def descent_y_bounds(ydot, z, block, terrain: Terrain, hopper: Hopper, lead=0.0,
     ndim = max(jnp.ndim(ydot), jnp.ndim(z), jnp.ndim(lead))
     heights, starts, ends = _blocks(terrain, ndim)
     t_h = descent_times(z, terrain, hopper) if t_h is None else t_h
-    every = jnp.arange(terrain.n_blocks)
-    left_of, right_of = (every, every) if sides is None else (sides[0], sides[1])
+    left_of, right_of = (slice(None), slice(None)) if sides is None else (sides[0], sides[1])
     h = terrain.heights[block]
     left = ((heights[left_of] > h) & (ends[left_of] <= terrain.starts[block]) & (ydot > 0))
     right = ((heights[right_of] > h) & (starts[right_of] >= terrain.ends[block]) & (ydot < 0))
@@ -490,10 +489,8 @@ def goal_robustness(goal, table: SituatedTable, templates: Templates, terrain: T
     velocity or energy range on the block it would land on, over a hole, into a wall) is a
     state from which no policy can continue.
     """
-    def held(p):
-        return jnp.any(candidate_situated(p, table, templates, terrain, hopper)[1])
-
-    return jnp.mean(jax.vmap(held)(probe_box(goal, half_width)).astype(float))
+    _, inside = probe_candidates(goal, table, templates, terrain, hopper, half_width)
+    return jnp.mean(jnp.any(inside, axis=1).astype(float))
 
 
 #: The goal's own place among its `probe_box` (offset `(0, 0, 0)`: the goal, bit for bit).
@@ -504,3 +501,11 @@ def probe_box(goal, half_width):
     """`(27, 3)`: the safety-sampling probes `goal + {-1, 0, 1}^3 * half_width`."""
     offsets = jnp.stack(jnp.meshgrid(*[jnp.arange(-1.0, 2.0)] * 3, indexing="ij"), -1)
     return goal + offsets.reshape(-1, 3) * half_width
+
+
+def probe_candidates(goal, table: SituatedTable, templates: Templates, terrain: Terrain,
+                     hopper: Hopper, half_width):
+    """`candidate_situated` of each probe of `probe_box`: `(27, 3 * n_templates)` ids and
+    masks."""
+    return jax.vmap(candidate_situated, (0, None, None, None, None))(
+        probe_box(goal, half_width), table, templates, terrain, hopper)

@@ -31,7 +31,7 @@ from .policies import (
     pair_goal,
     pair_limits,
     pair_may_intersect,
-    probe_box,
+    probe_candidates,
     situated_table,
     tall,
     template_boxes,
@@ -75,8 +75,7 @@ def _rows_and_robustness(goals, allowed, table, templates, terrain, hopper, half
     """`_rows` and `_robustness` of each goal from one set of touchdowns: a goal is the
     centre of its own probe box."""
     def one(goal):
-        ids, inside = jax.vmap(candidate_situated, (0, None, None, None, None))(
-            probe_box(goal, half_width), table, templates, terrain, hopper)
+        ids, inside = probe_candidates(goal, table, templates, terrain, hopper, half_width)
         c = PROBE_CENTRE
         return (ids[c], inside[c] & allowed[ids[c]],
                 jnp.mean(jnp.any(inside, axis=1).astype(float)))
@@ -178,6 +177,11 @@ def chunk_sizes(chunk: int, n: int, chunking: str) -> tuple[int, int]:
     return chunk, chunk
 
 
+def overlap(a, b):
+    """The overlap of boxes `a` and `b`, `(..., 2)` intervals `(lo, hi)` (empty: lo > hi)."""
+    return np.stack([np.maximum(a[..., 0], b[..., 0]), np.minimum(a[..., 1], b[..., 1])], -1)
+
+
 class Layout:
     """The situated policies of a plan: one per template and segment (Fig. 7).
 
@@ -211,18 +215,15 @@ class Layout:
     def limits(self, grid):
         """The templates' `pair_limits` on `grid` (computed once per layout and grid)."""
         if grid not in self._limits:
-            gf, d = self.gf_rel[:, None, 2], self.d_rel[None, :, 2]
-            v_box = np.stack([np.maximum(gf[..., 0], d[..., 0]),
-                              np.minimum(gf[..., 1], d[..., 1])], -1)
+            # A pair's ydot range, as `pair_args` has it (world and relative ydot agree).
+            v_box = overlap(self.gf_rel[:, None, 2], self.d_rel[None, :, 2])
             self._limits[grid] = limits_jit(self.templates, self.hopper, jnp.asarray(v_box),
                                             grid=grid)
         return self._limits[grid]
 
     def pair_args(self, rows, cols):
         """`(ti, si, tj, sj, boxes)` of pairs `(rows, cols)`; `boxes`: their overlap in z, ydot."""
-        gf, d = self.gf_world, self.d_world
-        boxes = np.stack([np.maximum(gf[rows, 1:, 0], d[cols, 1:, 0]),
-                          np.minimum(gf[rows, 1:, 1], d[cols, 1:, 1])], axis=2)
+        boxes = overlap(self.gf_world[rows, 1:], self.d_world[cols, 1:])
         return self.t_of[rows], self.s_of[rows], self.t_of[cols], self.s_of[cols], boxes
 
     def map(self, fn, n, chunk, batched, consts=(), bar=None):
@@ -235,11 +236,10 @@ class Layout:
 def plan_devices():
     """The devices the stages run on: every local device, but one on a CPU.
 
-    CPU devices share the same cores, and XLA already spreads one program over them; a
-    second CPU device only compiles every stage again (a CPU executable is bound to its
-    device): with 2 CPU devices a fresh process took 18.1 s for the `reference` plan and
-    7.9 s with a warm compilation cache, against 12.7 s and 6.9 s on one, and the warm
-    build is no faster (2-core CPU, docs/planning.md).
+    CPU devices share the same cores, and a CPU executable is bound to its device: spread
+    over several CPU devices, a fresh process compiles every stage once per device. On one
+    device it compiles each once, at the price of a somewhat slower warm build in a
+    process that has several CPU devices (measurements in docs/planning.md).
     """
     devices = jax.local_devices()
     return devices[:1] if devices[0].platform == "cpu" else devices
