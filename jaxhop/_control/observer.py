@@ -165,6 +165,33 @@ def observe_descent(obs: Observer, measured_ydot, ydot_descent, t, sensor) -> Ob
                         var=jnp.where(use, (1.0 - gain) * p, obs.var))
 
 
+def fuse_descent(obs: Observer, descent, t, sensor, g) -> Observer:
+    """The Kalman update of the apex estimate and the wind together with the state
+    `descent = (y, z, ydot)` measured `t` seconds into the descent (uniform noise of
+    half-widths `sensor` on each), through the ballistic fall from the apex:
+    `(y + ydot t + a t^2 / 2, z - g t^2 / 2, ydot + a t)`. The prior is the apex estimate
+    with its covariance and the wind with its variance, independent. A second measurement
+    of the same flight narrows the apex estimate before the leg is placed
+    (`docs/decisions.md`, "Apex filter"). `t == 0`: the estimate is kept."""
+    t_safe = jnp.where(t > 0, t, 1.0)
+    x = jnp.concatenate([obs.estimate, obs.wind[None]])
+    p = jnp.zeros((4, 4)).at[:3, :3].set(obs.est_var).at[3, 3].set(obs.var + PROCESS_VAR)
+    h = jnp.array([[1.0, 0.0, t_safe, 0.5 * t_safe**2], [0.0, 1.0, 0.0, 0.0],
+                   [0.0, 0.0, 1.0, t_safe]])
+    offset = jnp.array([0.0, -0.5 * g * t_safe**2, 0.0])
+    r = jnp.diag(jnp.asarray(sensor, float) ** 2 / 3.0 + R_MIN)
+    s = h @ p @ h.T + r
+    gain = jnp.linalg.solve(s, h @ p).T  # P H^T S^-1, with P and S symmetric
+    x_new = x + gain @ (jnp.asarray(descent, float) - h @ x - offset)
+    p_new = (jnp.eye(4) - gain @ h) @ p
+    p_new = 0.5 * (p_new + p_new.T)
+    use = (t > 0) & jnp.all(jnp.isfinite(x_new)) & jnp.all(jnp.isfinite(p_new))
+    return obs._replace(estimate=jnp.where(use, x_new[:3], obs.estimate),
+                        est_var=jnp.where(use, p_new[:3, :3], obs.est_var),
+                        wind=jnp.where(use, x_new[3], obs.wind),
+                        var=jnp.where(use, p_new[3, 3], obs.var))
+
+
 def after_stride(obs: Observer, measured, u, h, completed, energy=None) -> Observer:
     """Record a stride for the next update (only a completed stride is compared).
     `measured`: the apex estimate the stride was decided on. `energy`: the target energy

@@ -32,7 +32,14 @@ from .._models.slip.kernels import mirrored_rise_time
 from .._planning.plan import PlanTables
 from .decisions import BHOP, Model, model_for, sensed_foothold
 from .foothold import Footholds, corrected_heights, footholds_init, mapped_height, remember
-from .observer import DESCENT_FRACTION, Observer, after_stride, observe_descent, observer_init
+from .observer import (
+    DESCENT_FRACTION,
+    Observer,
+    after_stride,
+    fuse_descent,
+    observe_descent,
+    observer_init,
+)
 
 CONTROLLERS = ("paper", "adaptive")
 #: A run whose apex is measured outside every domain at more than this many consecutive
@@ -166,16 +173,30 @@ def stride_code(nxt, code, foot, world: World):
 def _descent_measurement(obs: Observer, measured, true_apex, heights, key, world: World):
     """A leg placed in flight (SLIP): the controller sets the touchdown angle after
     `DESCENT_FRACTION` of the fall from the apex to its corrected map under it, and
-    measures its horizontal velocity then (with the sensor's noise, a draw of its own) to
-    update the wind estimate (`observe_descent`)."""
+    measures its state again then, with the sensor's noise (draws of its own).
+
+    Without sensor noise the horizontal velocity gives the wind (`observe_descent`). With
+    it, the position and the velocity update the apex estimate and the wind together
+    (`fuse_descent`): the stride is decided on both measurements of the flight
+    (`docs/decisions.md`, "Apex filter")."""
     hop = world.hopper
     ground = mapped_height(measured[:2], heights, world.tables.terrain)
     fall = jnp.where(jnp.isfinite(ground), measured[1] - ground - hop.rho0, 0.0)
     t = DESCENT_FRACTION * jnp.sqrt(2.0 * jnp.maximum(fall, 0.0) / hop.g)
     noise = jax.random.uniform(key, minval=-1.0, maxval=1.0)
     sensor = world.disturbance.sensor
-    ydot = true_apex[2] + world.disturbance.wind * t + noise * sensor[2]
-    return observe_descent(obs, measured[2], ydot, t, sensor)
+    wind = world.disturbance.wind
+    ydot = true_apex[2] + wind * t + noise * sensor[2]
+    scalar = observe_descent(obs, measured[2], ydot, t, sensor)
+    # With sensor noise the position is measured too, and the apex estimate and the
+    # wind are updated together; without, the velocity alone gives the wind.
+    pos_noise = jax.random.uniform(jax.random.fold_in(key, 1), (2,), minval=-1.0, maxval=1.0)
+    descent = jnp.stack([true_apex[0] + true_apex[2] * t + 0.5 * wind * t**2
+                         + pos_noise[0] * sensor[0],
+                         true_apex[1] - 0.5 * hop.g * t**2 + pos_noise[1] * sensor[1], ydot])
+    joint = fuse_descent(obs, descent, t, sensor, hop.g)
+    noisy = jnp.any(sensor > 0)
+    return jax.tree.map(lambda a, b: jnp.where(noisy, a, b), joint, scalar)
 
 
 def _decide_adaptive(measured, true_apex, world: World, config: RunConfig, control: Control,
