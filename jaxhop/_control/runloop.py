@@ -28,6 +28,7 @@ from .._core.params import Disturbance, Hopper
 from .._core.programs import jit
 from .._core.result import Result
 from .._core.terrain import Terrain
+from .._models.flight import flight_position
 from .._models.slip.kernels import mirrored_rise_time
 from .._planning.plan import PlanTables
 from .decisions import BHOP, Model, model_for, sensed_foothold
@@ -191,9 +192,10 @@ def _descent_measurement(obs: Observer, measured, true_apex, heights, key, world
     # With sensor noise the position is measured too, and the apex estimate and the
     # wind are updated together; without, the velocity alone gives the wind.
     pos_noise = jax.random.uniform(jax.random.fold_in(key, 1), (2,), minval=-1.0, maxval=1.0)
-    descent = jnp.stack([true_apex[0] + true_apex[2] * t + 0.5 * wind * t**2
+    descent = jnp.stack([flight_position(true_apex[0], true_apex[2], wind, t)
                          + pos_noise[0] * sensor[0],
-                         true_apex[1] - 0.5 * hop.g * t**2 + pos_noise[1] * sensor[1], ydot])
+                         flight_position(true_apex[1], 0.0, -hop.g, t) + pos_noise[1] * sensor[1],
+                         ydot])
     joint = fuse_descent(obs, descent, t, sensor, hop.g)
     noisy = jnp.any(sensor > 0)
     return jax.tree.map(lambda a, b: jnp.where(noisy, a, b), joint, scalar)
