@@ -395,23 +395,71 @@ def reference_slip_plan():
 
 
 @pytest.mark.slow
-def test_without_disturbance_both_slip_controllers_run_alike_to_the_last_bit(
+def test_a_slip_run_in_a_headwind_captures_the_goal_at_rest(reference_slip_plan):
+    # In the paper's wind (-0.2 m/s^2, a headwind on the way to the goal) a SLIP 6 cm short
+    # of the goal and nearly at rest cannot stop there in one stride: the wind-aware
+    # deadbeat's best stride flies back at about 0.2 m/s. Runs circled 4-8 cm short of the
+    # goal until max_steps (reference, wind, seed 0: 758 of 4 426 runs). A capture stride
+    # aims instead at an apex half way there, moving forward, from which one more stride
+    # stops at the goal.
+    from jaxhop._control.decisions import capture_target
+    from jaxhop._core.params import disturbance_for
+    from jaxhop._execution.batches import run_batch
+    from jaxhop._models.slip.deadbeat import DeadbeatSearch, deadbeat_slip
+    from jaxhop._models.slip.stride import slip_stride
+
+    plan = reference_slip_plan
+    tables = plan.tables(slip=True)
+    windy = disturbance_for("wind")
+    apex, goal = jnp.array([9.44, 1.30, 0.03]), jnp.asarray(plan.goal, float)
+    # The premise, from the deadbeat and the stride themselves: one stride misses.
+    u, _ = deadbeat_slip(apex, goal, 0.0, HOPPER, DeadbeatSearch(table=tables.slip,
+                                                                 fallback=False),
+                         terrain=tables.terrain, wind=windy.wind)
+    pred, code, _ = slip_stride(apex, u, tables.terrain, HOPPER, windy.wind)
+    assert code == 0 and float(np.max(np.abs(np.asarray(pred - goal)))) > 0.05
+    # The capture stride's target: from there the same deadbeat and stride stop at the goal.
+    near, target = capture_target(apex, goal, jnp.full(3, 0.05), 0.0, HOPPER)
+    assert near and 0.0 < float(target[2]) < 0.3 and apex[0] < target[0] < goal[0]
+    u, _ = deadbeat_slip(target, goal, 0.0, HOPPER, DeadbeatSearch(table=tables.slip,
+                                                                   fallback=False),
+                         terrain=tables.terrain, wind=windy.wind)
+    stop, code, _ = slip_stride(target, u, tables.terrain, HOPPER, windy.wind)
+    assert code == 0 and float(np.max(np.abs(np.asarray(stop - goal)))) <= 0.01, stop
+    starts = np.array([[9.44, 1.30, 0.03], [9.45, 1.30, 0.0], [9.2, 1.45, 0.5]])
+    out = run_batch(plan, starts, jaxhop.RunSettings(model="slip", controller="adaptive"),
+                    key=jax.random.key(0), disturbance=windy)
+    assert (out["code"] == 0).all() and (out["steps"] <= 6).all(), (out["code"], out["steps"])
+
+
+@pytest.mark.slow
+def test_without_disturbance_both_slip_controllers_run_alike_until_a_capture_stride(
         reference_slip_plan):
-    # The adaptive controller's additions do nothing without disturbance (the estimate
-    # stays 0, the sensed footholds are the map's, no state needs recovery), and the paper's
-    # SLIP controller runs through the same compiled program with them switched off. From
-    # (5.6, 1.8, 0.5) the two used to start 3.5e-15 apart, and the adaptive run reached the
-    # goal one stride earlier.
+    # Without disturbance the adaptive controller's observer, recovery and sensed footholds
+    # do nothing (the estimate stays 0, the footholds are the map's, no state needs
+    # recovery), and the paper's SLIP controller runs through the same compiled program with
+    # them switched off. From (5.6, 1.8, 0.5) the two used to start 3.5e-15 apart. Only a
+    # capture stride near the goal, where the plan's goal stride misses, may part them: the
+    # runs are equal to the last bit before it, and the adaptive run is no longer.
+    from jaxhop._control.decisions import CAPTURE_TOLERANCES
     from jaxhop._execution.batches import run_batch
 
     starts = np.array([[5.6, 1.8, 0.5], [2.0, 1.6, 0.5], [6.6, 1.8, 0.5]])
     out = {c: run_batch(reference_slip_plan, starts, jaxhop.RunSettings(model="slip", controller=c),
                         key=jax.random.key(0)) for c in ("paper", "adaptive")}
-    assert (out["paper"]["code"] == 0).all()
-    for field in ("code", "steps", "policies", "recoveries"):
-        np.testing.assert_array_equal(out["paper"][field], out["adaptive"][field])
-    np.testing.assert_array_equal(out["paper"]["apexes"], out["adaptive"]["apexes"])
-    np.testing.assert_array_equal(out["paper"]["footholds"], out["adaptive"]["footholds"])
+    paper, adaptive = out["paper"], out["adaptive"]
+    assert (paper["code"] == 0).all() and (adaptive["code"] == 0).all()
+    assert (adaptive["steps"] <= paper["steps"]).all() and (adaptive["recoveries"] == 0).all()
+    goal, near = np.asarray(reference_slip_plan.goal), CAPTURE_TOLERANCES * 0.05
+    for i in range(len(starts)):
+        fp, fa = paper["footholds"][i], adaptive["footholds"][i]
+        same = ((paper["policies"][i] == adaptive["policies"][i])
+                & np.all((fp == fa) | (np.isnan(fp) & np.isnan(fa)), axis=1))
+        k = int(np.argmin(same)) if not same.all() else paper["steps"][i]
+        np.testing.assert_array_equal(paper["apexes"][i, :k + 1], adaptive["apexes"][i, :k + 1])
+        np.testing.assert_array_equal(paper["footholds"][i, :k], adaptive["footholds"][i, :k])
+        if k < paper["steps"][i]:  # parted by a capture stride, near the goal
+            assert np.all(np.abs(adaptive["apexes"][i, k] - goal) <= near), i
 
 
 @pytest.mark.slow

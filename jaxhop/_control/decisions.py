@@ -23,6 +23,7 @@ from .._models.flight import COLLISION, OK, liftoff_clear, touchdown
 from .._planning.plan import PlanTables
 from .._planning.policies import candidate_situated
 from .._planning.regions import foot_lead
+from .foothold import mapped_height
 from .observer import NU_MIN_SLIP, Observer, observe, slip_terms
 
 
@@ -214,6 +215,12 @@ SLIP_ACCEPT = (0.05, 0.05, 0.05)
 # multi-start solver only where the table has no start: where every table start misses, so
 # does the multi-start solver on nearly every target (docs/slip.md, "Deadbeat").
 SLIP_STAGE_C2 = 1e-4
+# Capture strides (docs/decisions.md, "Capture strides"): within CAPTURE_TOLERANCES goal
+# tolerances of the global goal on every axis, the second candidate of the adaptive SLIP
+# decision is an apex from which one stride stops at the goal, moving at the speed that
+# covers the way there in CAPTURE_FALLS falls from the goal's height.
+CAPTURE_TOLERANCES = 4.0
+CAPTURE_FALLS = 3.0
 
 
 def _slip_scales(hopper: Hopper):
@@ -252,8 +259,23 @@ def _first_accepted(one, goals, h, valid):
     return us, misses, preds
 
 
+def capture_target(apex, goal, tolerance, h, hopper: Hopper):
+    """`(near, target)` of a capture stride (`decide_slip`): whether `apex` lies within
+    `CAPTURE_TOLERANCES` goal `tolerance`s of the goal at rest `goal` on every axis, and the
+    apex `(y_g - 1.5 v t, z_g, v)` to aim at instead, from which one stride stops at the
+    goal: `t` the fall from the goal's height to a foothold at height `h`, `v` the speed
+    that covers the way to the goal in `CAPTURE_FALLS` such falls. The stop covers about
+    `v t` in its descent and half that in its stance, so the target lies half way to the
+    goal."""
+    near = jnp.all(jnp.abs(apex - goal) <= CAPTURE_TOLERANCES * tolerance)
+    t_fall = safe_sqrt(2.0 * (goal[1] - h - hopper.rho0) / hopper.g)
+    v = (goal[0] - apex[0]) / (CAPTURE_FALLS * jnp.maximum(t_fall, 1e-3))
+    return near, jnp.stack([goal[0] - 1.5 * v * t_fall, goal[1], v])
+
+
 def decide_slip(apex, tables: PlanTables, hopper: Hopper, n_candidates: int = SLIP_CANDIDATES,
-                recover: bool = False, heights=None, wind=None, recover_again=True):
+                recover: bool = False, heights=None, wind=None, recover_again=True,
+                capture=None):
     """SLIP controls for one measured apex: the deadbeat on the best SLIP-reachable match.
 
     The BHop plan's domains and goals ignore what the SLIP stance cannot do (the paper's
@@ -273,6 +295,12 @@ def decide_slip(apex, tables: PlanTables, hopper: Hopper, n_candidates: int = SL
     the nearest other domain), where there is one. `recover_again` (traced): whether that
     second decision may be a recovery (False: the paper's controller run by the adaptive
     controller's program, which treats a recovered apex as outside the domains).
+
+    `capture = (goal, tolerance, on)` (the adaptive controller; `on` traced): near the
+    run's global goal at rest, where the plan's goal stride cannot stop a SLIP a few cm
+    away, the second candidate is a capture stride (`capture_target`), taken only where its
+    prediction lands within `SLIP_ACCEPT` of its target, as the goal policy's stride
+    (docs/decisions.md, "Capture strides").
 
     With `recover` (the adaptive controller) an apex in no domain is recovered
     (`first_match`). `heights`: the block heights of the controller's corrected map
@@ -297,6 +325,16 @@ def decide_slip(apex, tables: PlanTables, hopper: Hopper, n_candidates: int = SL
         miss = jnp.max(jnp.abs(pred - goal) / scale)
         return u, jnp.where((code == OK) & jnp.all(jnp.isfinite(pred)), miss, jnp.inf), pred
 
+    near = jnp.asarray(False)
+    if capture is not None:
+        goal, tolerance, on = capture
+        goal = jnp.asarray(goal, float)
+        is_goal = jnp.all(tables.goals == goal, axis=1)
+        h_goal = mapped_height(jnp.stack([goal[0], goal[1] - hopper.rho0]), terrain.heights,
+                               terrain)
+        near, target = capture_target(apex, goal, tolerance, h_goal, hopper)
+        near = near & jnp.any(is_goal) & jnp.isfinite(h_goal) & on
+
     def choose(apex, exclude):
         ids, pos, recovered = _match_positions(apex, tables, hopper, recover, exclude)
         neg, k = jax.lax.top_k(-pos, n_candidates)
@@ -307,11 +345,18 @@ def decide_slip(apex, tables: PlanTables, hopper: Hopper, n_candidates: int = SL
         h = tables.table.centre[sit // nt, 1]
         if heights is not None:
             h = heights[tables.table.seg_block[sit // nt]]
+        captures = near & (jnp.arange(n_candidates) == 1)
+        if capture is not None:  # near the goal the capture stride replaces the second match
+            valid = valid | captures
+            sit = jnp.where(captures, -1, sit)
+            inst = jnp.where(captures, jnp.argmax(is_goal), inst)
+            goals = jnp.where(captures[:, None], target, goals)
+            h = jnp.where(captures, h_goal, h)
         if tables.slip is None:
             u, miss, pred = jax.vmap(one, (None, 0, 0))(apex, goals, h)
         else:
             u, miss, pred = _first_accepted(lambda g, h_: one(apex, g, h_), goals, h, valid)
-        miss = jnp.where(valid, miss, jnp.inf)
+        miss = jnp.where(valid & ~(captures & (miss > 1.0)), miss, jnp.inf)
         good = miss <= 1.0
         pick = jnp.where(jnp.any(good), jnp.argmax(good), jnp.argmin(miss))
         # No candidate at all (outside every domain) or no completed stride: the first match.
@@ -322,8 +367,9 @@ def decide_slip(apex, tables: PlanTables, hopper: Hopper, n_candidates: int = SL
         away = jnp.max(jnp.abs(apex - goals[pick]) / scale) <= miss[pick]
         stuck = (~jnp.any(good) & jnp.isfinite(miss[pick]) & found_next
                  & (sit_next == sit[pick]) & away)
-        return ((valid[0], u[pick], inst[pick].astype(jnp.int32), recovered),
-                sit[pick].astype(jnp.int32), stuck)
+        captured = captures[pick] & good[pick]
+        return ((valid[0] | captured, u[pick], inst[pick].astype(jnp.int32),
+                 recovered & ~captured), sit[pick].astype(jnp.int32), stuck)
 
     # Both decisions are turns of one loop, so the decision (its deadbeat's nested solves)
     # is traced and compiled once: the second turn runs only where the first one is stuck
@@ -373,13 +419,14 @@ class Model(eqx.Module):
         raise NotImplementedError
 
     def decide_adaptive(self, apex, tables: PlanTables, hopper: Hopper, wind, heights,
-                        h_touch, on=None):
+                        h_touch, on=None, goal=None, tolerance=None):
         """The adaptive controller's decision with the estimated `wind` (`None`: the
         model's deadbeat is wind-blind) on the corrected map's block `heights`, with the
         foothold height `h_touch` sensed for an instantaneous stance (else NaN),
         recovering an apex in no domain: `(found, u, instantiated, recovered)`. `on`
         (traced, `None`: on): the adaptive parts switched on (the run loop drops a
-        recovered decision where they are off)."""
+        recovered decision where they are off). `goal`, `tolerance`: the run's global goal
+        and its tolerance, for a SLIP's capture strides (`None`: none)."""
         raise NotImplementedError
 
     def foot_offset(self, u, hopper: Hopper):
@@ -398,7 +445,8 @@ class _BHop(Model):
     def decide(self, apex, tables, hopper):
         return decide_bhop(apex, tables, hopper)
 
-    def decide_adaptive(self, apex, tables, hopper, wind, heights, h_touch, on=None):
+    def decide_adaptive(self, apex, tables, hopper, wind, heights, h_touch, on=None,
+                        goal=None, tolerance=None):
         return decide_bhop(apex, tables, hopper, wind, heights, h_touch)
 
     def foot_offset(self, u, hopper):
@@ -417,9 +465,12 @@ class _Slip(Model):
     def decide(self, apex, tables, hopper):
         return decide_slip(apex, tables, hopper)
 
-    def decide_adaptive(self, apex, tables, hopper, wind, heights, h_touch, on=None):
+    def decide_adaptive(self, apex, tables, hopper, wind, heights, h_touch, on=None,
+                        goal=None, tolerance=None):
+        on = jnp.asarray(True) if on is None else on
+        capture = None if goal is None else (goal, tolerance, on)
         return decide_slip(apex, tables, hopper, recover=True, heights=heights, wind=wind,
-                           recover_again=True if on is None else on)
+                           recover_again=on, capture=capture)
 
     def foot_offset(self, u, hopper):
         return hopper.rho0 * jnp.stack([jnp.sin(u[0]), -jnp.cos(u[0])])
