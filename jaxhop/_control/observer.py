@@ -37,7 +37,9 @@ import jax
 import jax.numpy as jnp
 
 from .._core.params import Hopper
+from .._core.terrain import Terrain
 from .._models.bhop import bhop_apex_map
+from .foothold import mapped_height
 
 #: Prior variance of the wind (m/s^2)^2: a standard deviation of 1 m/s^2, five times the
 #: paper's wind, so the first innovation is trusted almost fully.
@@ -190,6 +192,34 @@ def fuse_descent(obs: Observer, descent, t, sensor, g) -> Observer:
                         est_var=jnp.where(use, p_new[:3, :3], obs.est_var),
                         wind=jnp.where(use, x_new[3], obs.wind),
                         var=jnp.where(use, p_new[3, 3], obs.var))
+
+
+def descent_time(measured, heights, terrain: Terrain, hopper: Hopper):
+    """When the descent measurement is taken: `DESCENT_FRACTION` of the time of the fall
+    from the measured apex until the foot (at rest length below the body) reaches the
+    corrected map (block `heights`) under it; 0 where the map has no block there."""
+    ground = mapped_height(measured[:2], heights, terrain)
+    fall = jnp.where(jnp.isfinite(ground), measured[1] - ground - hopper.rho0, 0.0)
+    return DESCENT_FRACTION * jnp.sqrt(2.0 * jnp.maximum(fall, 0.0) / hopper.g)
+
+
+def descent_noise(key):
+    """The uniforms in `[-1, 1)` of a descent measurement, ordered `(y, z, ydot)`: the
+    velocity's from `key`, the position's from `fold_in(key, 1)`."""
+    velocity = jax.random.uniform(key, minval=-1.0, maxval=1.0)
+    position = jax.random.uniform(jax.random.fold_in(key, 1), (2,), minval=-1.0, maxval=1.0)
+    return jnp.stack([position[0], position[1], velocity])
+
+
+def descent_update(obs: Observer, measured_ydot, descent, t, sensor, g) -> Observer:
+    """The observer's update with the state `descent = (y, z, ydot)` measured `t` seconds
+    into the descent. Without sensor noise the change of horizontal velocity since the
+    apex measurement (`measured_ydot`) gives the wind (`observe_descent`); with it, the
+    apex estimate and the wind are updated together (`fuse_descent`)."""
+    scalar = observe_descent(obs, measured_ydot, descent[2], t, sensor)
+    joint = fuse_descent(obs, descent, t, sensor, g)
+    noisy = jnp.any(sensor > 0)
+    return jax.tree.map(lambda a, b: jnp.where(noisy, a, b), joint, scalar)
 
 
 def after_stride(obs: Observer, measured, u, h, completed, energy=None) -> Observer:
