@@ -93,6 +93,90 @@ def test_a_foot_on_ice_slips_and_on_rubber_does_not():
     assert s.code == Result.SLIP and s.slide > 0.01 * HOPPER.rho0
 
 
+WIND = -0.2  # the named `wind` noise (`jaxhop._core.params.WIND_ACCEL`)
+
+
+def _descent_rows(wind, u=(0.2, KC, KC), apex=(0.0, 1.5, 0.8)):
+    """The rows of a stride's descent (every 1 ms) from `apex` with the leg placed."""
+    sim = Simulator(HOPPER, FLAT, Mechanics())
+    sim.reset(np.asarray(apex, float), u[0])
+    rows = []
+    assert sim.stride(np.asarray(u, float), record=rows, every=1e-3, wind=wind).code == 0
+    rows = np.asarray(rows)
+    return rows[: np.argmax(rows[:, 5] > 0)]
+
+
+def test_wind_force_flies_the_descent_on_the_ballistic_path():
+    # With the leg placed and held, the body flies as the whole hopper: under the wind force
+    # its path is y0 + v t + a t^2 / 2 (closed form), to within MuJoCo's semi-implicit Euler
+    # step (a t dt / 2 = 3e-5 m after 0.3 s); without the force it misses by a t^2 / 2.
+    y0, v = 0.0, 0.8
+
+    def miss(rows):
+        t = rows[:, 0]
+        return np.max(np.abs(rows[:, 1] - (y0 + v * t + 0.5 * WIND * t**2)))
+
+    windy, calm = _descent_rows(WIND), _descent_rows(0.0)
+    assert windy[-1, 0] > 0.3 and windy.shape == calm.shape
+    assert miss(windy) < 1e-4, miss(windy)
+    assert miss(calm) > 8e-3, miss(calm)
+
+
+def test_wind_force_acts_in_flight_only(monkeypatch):
+    # The horizontal force MuJoCo applies, step by step: the hopper's mass times the wind
+    # before the first foot contact and at the next apex, none while the foot touches.
+    import mujoco
+
+    step, seen = mujoco.mj_step, []
+
+    def spy(model, data):
+        seen.append((float(np.sum(data.xfrc_applied[:, 0])), data.ncon > 0))
+        step(model, data)
+
+    mech = Mechanics()
+    total = HOPPER.m * (1 + mech.leg_mass + mech.foot_mass)
+    sim = Simulator(HOPPER, FLAT, mech)
+    sim.reset(np.array([0.0, 1.5, 0.8]), 0.2)
+    monkeypatch.setattr(mujoco, "mj_step", spy)
+    s = sim.stride(np.array([0.2, KC, KC]), wind=WIND)
+    monkeypatch.undo()
+    assert s.code == Result.SUCCESS
+    force, contact = (np.asarray(x) for x in zip(*seen))
+    first = np.argmax(contact)
+    np.testing.assert_allclose(force[:first], total * WIND, rtol=1e-12)
+    assert np.all(force[contact] == 0.0) and contact.sum() > 50
+    assert force[-1] == pytest.approx(total * WIND, rel=1e-12)
+    assert np.all(sim.data.xfrc_applied == 0.0)  # cleared after the stride
+
+
+def test_descent_state_is_the_ballistic_flight_from_the_apex():
+    # The descent measurement's look-ahead on a copy of the state: from an apex the
+    # simulator was reset to, and from the apex a windy stride ended at (up to one step
+    # past it). IDEAL's RK4 flies a constant acceleration exactly.
+    sim = Simulator(HOPPER, FLAT, IDEAL)
+
+    def ballistic(apex, t, wind):
+        return np.array([apex[0] + apex[2] * t + 0.5 * wind * t**2,
+                         apex[1] - 0.5 * HOPPER.g * t**2, apex[2] + wind * t])
+
+    apex = np.array([0.3, 1.5, 0.8])
+    sim.reset(apex, 0.1)
+    before = sim.data.qpos.copy()
+    for t in (0.0, 0.13, 0.2037):
+        np.testing.assert_allclose(sim.descent_state(t, WIND), ballistic(apex, t, WIND),
+                                   rtol=0, atol=1e-9)
+    assert np.array_equal(sim.data.qpos, before)  # the simulator's own state is kept
+    s = sim.stride(np.array([0.2, KC, KC]), wind=WIND)
+    assert s.code == Result.SUCCESS
+    for t in (0.05, 0.2):
+        got = sim.descent_state(t, WIND)
+        np.testing.assert_allclose(got, ballistic(s.apex, t, WIND), rtol=0, atol=1e-5)
+        # without the wind in the look-ahead the speed misses by a t (less the part of a
+        # step the stride flew past the apex, already with the wind)
+        calm = sim.descent_state(t, 0.0)[2]
+        assert abs(calm - got[2]) == pytest.approx(-WIND * t, abs=-WIND * IDEAL.timestep)
+
+
 def test_mechanics_are_checked():
     from jaxhop import InputError
 
