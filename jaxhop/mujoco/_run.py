@@ -35,6 +35,11 @@ from ._model import DEFAULT, Mechanics
 from ._sim import Simulator
 
 RUN_FIELDS = ("code", "steps", "apexes", "footholds", "policies", "recoveries", "why")
+#: Half-widths `(y, z, ydot)` of the error of a MuJoCo stride that the SLIP's apex map does
+#: not describe (m, m, m/s), for the adaptive controller's observer: about the largest
+#: differences between a stride of the `DEFAULT` hopper and the SLIP's over the
+#: cross-check's 50 strides (`docs/mujoco.md`, "The controller").
+STRIDE_ERROR = (0.03, 0.05, 0.05)
 #: A foothold sensed this far (m) from the corrected map's height under it differs from it.
 SENSED_DIFFERS = 1e-6
 
@@ -54,6 +59,7 @@ class Job:
     max_steps: int = 60
     seed: int = 0
     wind: float = 0.0
+    stride_error: tuple | None = STRIDE_ERROR
 
 
 class Controller:
@@ -62,27 +68,33 @@ class Controller:
     The decision, the observer's update at an apex (adaptive controller), the foothold
     memory and the noise draws are jitted once and reused; each apex then costs a call or
     two (tens of ms on a CPU core).
+
+    `stride_error`: the observer's `stride_error` (`jaxhop._control.observer.observe`),
+    half-widths of the MuJoCo stride's error against the SLIP's apex map; `None`: jaxhop's
+    observer as it is, whose model is exact (an attribute: changing it compiles nothing).
     """
 
-    def __init__(self, plan, controller: str = "adaptive"):
+    def __init__(self, plan, controller: str = "adaptive", stride_error=STRIDE_ERROR):
 
         from .._control.decisions import SLIP
         from .._control.runloop import check_controller
 
         self.plan, self.tables, self.hopper = plan, plan.tables(), plan.hopper
         self.adaptive = check_controller(controller) == "adaptive"
+        self.stride_error = stride_error
         self._model = SLIP
         self._decide = jit(self._decision)
         self._observe = jit(self._observation)
         self._remember = jit(_remember)
         self._noise = jit(_noise)
 
-    def _observation(self, obs, measured, footholds, sensor, key, i, k, tables, hopper):
+    def _observation(self, obs, measured, footholds, sensor, key, i, k, tables, hopper,
+                     stride_error=None):
         from .._control.foothold import corrected_heights
         from .._control.observer import descent_noise, descent_time
 
         heights = corrected_heights(footholds, tables.terrain)
-        obs = self._model.observe(obs, measured, sensor, hopper)
+        obs = self._model.observe(obs, measured, sensor, hopper, stride_error=stride_error)
         t = descent_time(measured, heights, tables.terrain, hopper)
         return obs, t, descent_noise(_descent_key(key, i, k))
 
@@ -103,12 +115,14 @@ class Controller:
 
     def observe(self, obs, measured, footholds, sensor, key, index: int, k: int):
         """The adaptive controller at apex `k` of run `index`: the observer updated with
-        the `measured` apex (`Model.observe`), the time `t` of the descent measurement
+        the `measured` apex (`Model.observe`, with `stride_error`), the time `t` of the
+        descent measurement
         (`descent_time`, on the map corrected by `footholds`) and its noise draws
         (`descent_noise`): `(obs, t, noise)`, as NumPy values."""
         obs, t, noise = self._observe(_numpy(obs), np.asarray(measured, float), footholds,
                                       np.asarray(sensor, float), key, index, k, self.tables,
-                                      self.hopper)
+                                      self.hopper, np.zeros(3) if self.stride_error is None
+                                      else np.asarray(self.stride_error, float))
         return _numpy(obs), float(t), np.asarray(noise)
 
     def decide(self, measured, footholds, obs=None, descent=None, t: float = 0.0,
@@ -264,7 +278,8 @@ def _start(job: Job):
 
     _worker.update(job=job, sim=Simulator(job.plan.hopper, terrain_from_dict(job.terrain),
                                           job.mech),
-                   ctrl=Controller(job.plan, job.controller), key=jax.random.key(job.seed))
+                   ctrl=Controller(job.plan, job.controller, job.stride_error),
+                   key=jax.random.key(job.seed))
 
 
 def _one(task):
@@ -341,10 +356,11 @@ class _one_thread_each:
 
 def job_for(terrain: Terrain, plan, mech: Mechanics = DEFAULT, controller: str = "adaptive",
             disturbance: Disturbance | None = None, tolerance=(0.05, 0.05, 0.05),
-            max_steps: int = 60, seed: int = 0) -> Job:
+            max_steps: int = 60, seed: int = 0, stride_error=STRIDE_ERROR) -> Job:
     """A `Job` from jaxhop objects: runs on the true `terrain` under `plan` (built on the
     planner's map), the sensor noise and the wind from `disturbance` (MuJoCo runs have no
-    landing error: a `disturbance` with one is refused)."""
+    landing error: a `disturbance` with one is refused); `stride_error` for the adaptive
+    controller's observer (`Controller`)."""
     sensor, wind = (0.0, 0.0, 0.0), 0.0
     if disturbance is not None:
         if float(disturbance.landing) != 0.0:
@@ -353,7 +369,7 @@ def job_for(terrain: Terrain, plan, mech: Mechanics = DEFAULT, controller: str =
         wind = float(disturbance.wind)
     return Job(terrain.to_dict(), plan, mech, controller, sensor,
                tuple(float(x) for x in np.asarray(tolerance)), int(max_steps), int(seed),
-               wind)
+               wind, None if stride_error is None else tuple(float(x) for x in stride_error))
 
 
 def summarize_runs(result: dict, seconds: float) -> dict:
