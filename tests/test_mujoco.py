@@ -273,12 +273,17 @@ def test_evenly_spaced_states_keep_both_ends():
 
 @pytest.mark.parametrize("noise", ["wind", "wind+sensor", "sensor+ground+wind"])
 def test_mujoco_cli_takes_wind(noise):
+    from jaxhop import InputError
     from jaxhop._cli.args import check_sim
     from jaxhop._cli.main import build_parser
 
     args = build_parser().parse_args(["sweep", "--sim", "mujoco", "--noise", noise])
     check_sim(args)
     assert args.model == "slip"
+    # a landing error (parkour's kind, which --noise itself refuses) is not simulated
+    args.noise = f"{noise}+landing"
+    with pytest.raises(InputError, match="'landing' is not simulated in MuJoCo"):
+        check_sim(args)
 
 
 @pytest.mark.parametrize("argv, needle", [
