@@ -47,8 +47,9 @@ SENSED_DIFFERS = 1e-6
 @dataclass(frozen=True)
 class Job:
     """Everything a process needs for MuJoCo runs: the true terrain (as a dict), the plan
-    (built on the planner's map), the mechanics and the run settings. It is pickled once
-    to each worker process."""
+    (built on the planner's map), the mechanics and the run settings: the sensor noise's
+    half-widths, the wind (m/s^2 in flight) and the observer's `stride_error`
+    (`Controller`). It is pickled once to each worker process."""
 
     terrain: dict
     plan: object
