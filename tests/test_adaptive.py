@@ -319,6 +319,51 @@ def test_descent_fusion_is_the_gaussian_posterior_of_both_measurements():
     assert np.array_equal(np.asarray(kept.estimate), est) and float(kept.wind) == -0.1
 
 
+def test_stride_error_is_process_noise_of_the_prediction():
+    # A hopper the model does not describe (`jaxhop.mujoco`): its stride error, uniform of
+    # half-widths w, adds w^2 / 3 to the apex prediction's covariance and w_v^2 / 3 to the
+    # wind innovation's noise. Checked against the Gaussian posterior in information
+    # form; no stride error is jaxhop's observer bit for bit.
+    from jaxhop._control.observer import PROCESS_VAR, Q_MIN, R_MIN, bhop_terms
+
+    sensor = jnp.full(3, 0.05)
+    w = np.array([0.03, 0.05, 0.05])
+    apex = jnp.array([0.0, 1.6, 0.5])
+    u = deadbeat_bhop(apex, jnp.array([0.6, 1.5, 0.4]), 0.0, HOP)
+    obs = observer_init()._replace(
+        apex=apex, u=u, h=jnp.asarray(0.0), pending=jnp.asarray(True),
+        wind=jnp.asarray(-0.1), var=jnp.asarray(0.01),
+        est_var=jnp.diag(jnp.array([3e-4, 4e-4, 5e-4])))
+    pred, h_wind, jac = bhop_terms(obs, HOP)
+    measured = np.asarray(pred) + np.array([0.02, -0.03, 0.04])
+    plain = observe(obs, jnp.asarray(measured), sensor, HOP)
+    zero = observe(obs, jnp.asarray(measured), sensor, HOP, stride_error=jnp.zeros(3))
+    assert all(np.array_equal(np.asarray(a), np.asarray(b), equal_nan=True)
+               for a, b in zip(plain, zero))
+    new = observe(obs, jnp.asarray(measured), sensor, HOP, stride_error=jnp.asarray(w))
+    pred, h_wind, jac = (np.asarray(x) for x in (pred, h_wind, jac))
+    est_var, r_apex = np.asarray(obs.est_var), np.diag(0.05**2 / 3 * np.ones(3))
+    # the wind: a scalar Gaussian prior and one measurement of the speed
+    p = 0.01 + PROCESS_VAR
+    r = 0.05**2 / 3 + jac[2] @ est_var @ jac[2] + R_MIN + w[2] ** 2 / 3
+    wind = (-0.1 / p + h_wind[2] * (measured[2] - pred[2] + h_wind[2] * -0.1) / r) / (
+        1 / p + h_wind[2] ** 2 / r)
+    var = 1 / (1 / p + h_wind[2] ** 2 / r)
+    np.testing.assert_allclose(float(new.wind), wind, rtol=1e-9)
+    np.testing.assert_allclose(float(new.var), var, rtol=1e-9)
+    # the apex: the prediction with the new wind, its covariance with the stride error
+    prior = pred + h_wind * (wind - -0.1)
+    p0 = jac @ est_var @ jac.T + var * np.outer(h_wind, h_wind) + np.diag(Q_MIN + w**2 / 3)
+    x, cov = _posterior_information_form(prior, p0, np.eye(3), r_apex, measured)
+    np.testing.assert_allclose(np.asarray(new.estimate), x, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(np.asarray(new.est_var), cov, rtol=1e-9)
+    # it trusts the prediction less: its position leans further towards the measurement
+    # and its covariance is larger than without the stride error
+    assert np.all(np.abs(np.asarray(new.estimate) - measured)[:2]
+                  < np.abs(np.asarray(plain.estimate) - measured)[:2])
+    assert np.trace(np.asarray(new.est_var)) > np.trace(np.asarray(plain.est_var))
+
+
 @pytest.mark.parametrize("wind_var", [1.0, 1e-6])
 def test_descent_measurement_narrows_the_apex_estimate(wind_var):
     # An apex measured raw (uniform noise, half-width 0.05 on every axis) and a second

@@ -75,8 +75,8 @@ DZ = v.arg_type(v.positive, "--dz")
 YDOT0 = v.arg_type(v.real, "--ydot0", MAX_SPEED)
 CHUNK = v.arg_type(v.count, "--chunk", MAX_CHUNK)
 RUNS = v.arg_type(v.count, "--runs", MAX_CHUNK * 32)
-#: `--noise` kinds a MuJoCo run has (no wind: its flight has no disturbance force).
-MUJOCO_NOISE = ("none", "sensor", "ground")
+#: `--noise` kinds a MuJoCo run has (no landing error: its landings are simulated).
+MUJOCO_NOISE = ("none", "wind", "sensor", "ground")
 
 
 def check_sim(args):

@@ -433,8 +433,10 @@ class Model(eqx.Module):
         """The foot relative to the COM in flight with controls `u`."""
         raise NotImplementedError
 
-    def observe(self, obs: Observer, measured, sensor, hopper: Hopper, landing=0.0) -> Observer:
-        """The observer's update with the apex measured after its pending stride."""
+    def observe(self, obs: Observer, measured, sensor, hopper: Hopper, landing=0.0,
+                stride_error=None) -> Observer:
+        """The observer's update with the apex measured after its pending stride
+        (`jaxhop._control.observer.observe`)."""
         raise NotImplementedError
 
 
@@ -452,8 +454,9 @@ class _BHop(Model):
     def foot_offset(self, u, hopper):
         return jnp.array([0.0, -hopper.rho0])
 
-    def observe(self, obs, measured, sensor, hopper, landing=0.0):
-        return observe(obs, measured, sensor, hopper, landing=landing)
+    def observe(self, obs, measured, sensor, hopper, landing=0.0, stride_error=None):
+        return observe(obs, measured, sensor, hopper, landing=landing,
+                       stride_error=stride_error)
 
 
 class _Slip(Model):
@@ -475,8 +478,9 @@ class _Slip(Model):
     def foot_offset(self, u, hopper):
         return hopper.rho0 * jnp.stack([jnp.sin(u[0]), -jnp.cos(u[0])])
 
-    def observe(self, obs, measured, sensor, hopper, landing=0.0):
-        return observe(obs, measured, sensor, hopper, slip_terms, NU_MIN_SLIP, landing)
+    def observe(self, obs, measured, sensor, hopper, landing=0.0, stride_error=None):
+        return observe(obs, measured, sensor, hopper, slip_terms, NU_MIN_SLIP, landing,
+                       stride_error)
 
 
 # SLIP strides cost a deadbeat solve per lane and run lengths vary more (a vmapped while loop

@@ -37,7 +37,9 @@ import jax
 import jax.numpy as jnp
 
 from .._core.params import Hopper
+from .._core.terrain import Terrain
 from .._models.bhop import bhop_apex_map
+from .foothold import mapped_height
 
 #: Prior variance of the wind (m/s^2)^2: a standard deviation of 1 m/s^2, five times the
 #: paper's wind, so the first innovation is trusted almost fully.
@@ -105,17 +107,22 @@ def slip_terms(obs: Observer, hopper: Hopper):
 
 
 def observe(obs: Observer, measured, sensor, hopper: Hopper, terms=bhop_terms,
-            nu_min=NU_MIN, landing=0.0) -> Observer:
+            nu_min=NU_MIN, landing=0.0, stride_error=None) -> Observer:
     """The Kalman update with the apex measured after the pending stride (none pending, or
     an innovation below `nu_min`: the estimate is kept), then the apex estimate (`fuse`).
 
     `sensor`: the half-widths of the uniform apex noise `(y, z, ydot)`. `terms`: the
     model's prediction, `bhop_terms` or `slip_terms`. `landing`: the half-width of the
-    landing error on `y` (0: none).
+    landing error on `y` (0: none). `stride_error`: half-widths `(y, z, ydot)` of a
+    uniform error of the stride that the model's prediction does not describe (a hopper
+    that is not the model, `jaxhop.mujoco`; `None`: none), process noise of the apex
+    prediction and noise of the wind's innovation.
     """
     pred, h_wind, jac = terms(obs, hopper)
     # The new apex carries w_v; the apex the prediction started from carries est_var.
     r = sensor[2] ** 2 / 3.0 + jac[2] @ obs.est_var @ jac[2] + R_MIN
+    if stride_error is not None:
+        r = r + jnp.asarray(stride_error, float)[2] ** 2 / 3.0
     p = obs.var + PROCESS_VAR
     nu = measured[2] - pred[2]
     gain = p * h_wind[2] / (h_wind[2] ** 2 * p + r)
@@ -123,17 +130,21 @@ def observe(obs: Observer, measured, sensor, hopper: Hopper, terms=bhop_terms,
     wind = jnp.where(use, obs.wind + gain * nu, obs.wind)
     var = jnp.where(use, (1.0 - gain * h_wind[2]) * p, obs.var)
     estimate, est_var = fuse(obs, measured, sensor, pred + h_wind * (wind - obs.wind),
-                             h_wind, jac, var, landing)
+                             h_wind, jac, var, landing, stride_error)
     return obs._replace(wind=wind, var=var, pending=jnp.asarray(False), estimate=estimate,
                         est_var=est_var)
 
 
-def fuse(obs: Observer, measured, sensor, pred, h_wind, jac, wind_var, landing=0.0):
+def fuse(obs: Observer, measured, sensor, pred, h_wind, jac, wind_var, landing=0.0,
+         stride_error=None):
     """`(estimate, covariance)` of the apex: the prediction `pred` of the pending stride
     fused with the measurement (the Kalman gain of the linearised stride). No sensor noise,
-    nothing pending or a non-finite prediction: the measurement itself."""
+    nothing pending or a non-finite prediction: the measurement itself. `landing`,
+    `stride_error`: as `observe`'s."""
     r = jnp.asarray(sensor, float) ** 2 / 3.0
     q = jnp.zeros(3).at[0].set(jnp.asarray(landing, float) ** 2 / 3.0) + Q_MIN
+    if stride_error is not None:
+        q = q + jnp.asarray(stride_error, float) ** 2 / 3.0
     p = jac @ obs.est_var @ jac.T + wind_var * jnp.outer(h_wind, h_wind) + jnp.diag(q)
     gain = jnp.linalg.solve(p + jnp.diag(r), p).T  # P S^-1, with P and S symmetric
     est = pred + gain @ (measured - pred)
@@ -190,6 +201,34 @@ def fuse_descent(obs: Observer, descent, t, sensor, g) -> Observer:
                         est_var=jnp.where(use, p_new[:3, :3], obs.est_var),
                         wind=jnp.where(use, x_new[3], obs.wind),
                         var=jnp.where(use, p_new[3, 3], obs.var))
+
+
+def descent_time(measured, heights, terrain: Terrain, hopper: Hopper):
+    """When the descent measurement is taken: `DESCENT_FRACTION` of the time of the fall
+    from the measured apex until the foot (at rest length below the body) reaches the
+    corrected map (block `heights`) under it; 0 where the map has no block there."""
+    ground = mapped_height(measured[:2], heights, terrain)
+    fall = jnp.where(jnp.isfinite(ground), measured[1] - ground - hopper.rho0, 0.0)
+    return DESCENT_FRACTION * jnp.sqrt(2.0 * jnp.maximum(fall, 0.0) / hopper.g)
+
+
+def descent_noise(key):
+    """The uniforms in `[-1, 1)` of a descent measurement, ordered `(y, z, ydot)`: the
+    velocity's from `key`, the position's from `fold_in(key, 1)`."""
+    velocity = jax.random.uniform(key, minval=-1.0, maxval=1.0)
+    position = jax.random.uniform(jax.random.fold_in(key, 1), (2,), minval=-1.0, maxval=1.0)
+    return jnp.stack([position[0], position[1], velocity])
+
+
+def descent_update(obs: Observer, measured_ydot, descent, t, sensor, g) -> Observer:
+    """The observer's update with the state `descent = (y, z, ydot)` measured `t` seconds
+    into the descent. Without sensor noise the change of horizontal velocity since the
+    apex measurement (`measured_ydot`) gives the wind (`observe_descent`); with it, the
+    apex estimate and the wind are updated together (`fuse_descent`)."""
+    scalar = observe_descent(obs, measured_ydot, descent[2], t, sensor)
+    joint = fuse_descent(obs, descent, t, sensor, g)
+    noisy = jnp.any(sensor > 0)
+    return jax.tree.map(lambda a, b: jnp.where(noisy, a, b), joint, scalar)
 
 
 def after_stride(obs: Observer, measured, u, h, completed, energy=None) -> Observer:

@@ -34,11 +34,11 @@ from .._planning.plan import PlanTables
 from .decisions import BHOP, Model, model_for, sensed_foothold
 from .foothold import Footholds, corrected_heights, footholds_init, mapped_height, remember
 from .observer import (
-    DESCENT_FRACTION,
     Observer,
     after_stride,
-    fuse_descent,
-    observe_descent,
+    descent_noise,
+    descent_time,
+    descent_update,
     observer_init,
 )
 
@@ -173,32 +173,24 @@ def stride_code(nxt, code, foot, world: World):
 
 def _descent_measurement(obs: Observer, measured, true_apex, heights, key, world: World):
     """A leg placed in flight (SLIP): the controller sets the touchdown angle after
-    `DESCENT_FRACTION` of the fall from the apex to its corrected map under it, and
-    measures its state again then, with the sensor's noise (draws of its own).
+    `DESCENT_FRACTION` of the fall from the apex to its corrected map under it
+    (`descent_time`), and measures its state again then, on the ballistic flight with the
+    wind, with the sensor's noise (draws of its own, `descent_noise`).
 
     Without sensor noise the horizontal velocity gives the wind (`observe_descent`). With
     it, the position and the velocity update the apex estimate and the wind together
     (`fuse_descent`): the stride is decided on both measurements of the flight
-    (`docs/decisions.md`, "Apex filter")."""
+    (`docs/decisions.md`, "Apex filter"; `descent_update`)."""
     hop = world.hopper
-    ground = mapped_height(measured[:2], heights, world.tables.terrain)
-    fall = jnp.where(jnp.isfinite(ground), measured[1] - ground - hop.rho0, 0.0)
-    t = DESCENT_FRACTION * jnp.sqrt(2.0 * jnp.maximum(fall, 0.0) / hop.g)
-    noise = jax.random.uniform(key, minval=-1.0, maxval=1.0)
+    t = descent_time(measured, heights, world.tables.terrain, hop)
+    noise = descent_noise(key)
     sensor = world.disturbance.sensor
     wind = world.disturbance.wind
-    ydot = true_apex[2] + wind * t + noise * sensor[2]
-    scalar = observe_descent(obs, measured[2], ydot, t, sensor)
-    # With sensor noise the position is measured too, and the apex estimate and the
-    # wind are updated together; without, the velocity alone gives the wind.
-    pos_noise = jax.random.uniform(jax.random.fold_in(key, 1), (2,), minval=-1.0, maxval=1.0)
     descent = jnp.stack([flight_position(true_apex[0], true_apex[2], wind, t)
-                         + pos_noise[0] * sensor[0],
-                         flight_position(true_apex[1], 0.0, -hop.g, t) + pos_noise[1] * sensor[1],
-                         ydot])
-    joint = fuse_descent(obs, descent, t, sensor, hop.g)
-    noisy = jnp.any(sensor > 0)
-    return jax.tree.map(lambda a, b: jnp.where(noisy, a, b), joint, scalar)
+                         + noise[0] * sensor[0],
+                         flight_position(true_apex[1], 0.0, -hop.g, t) + noise[1] * sensor[1],
+                         true_apex[2] + wind * t + noise[2] * sensor[2]])
+    return descent_update(obs, measured[2], descent, t, sensor, hop.g)
 
 
 def _decide_adaptive(measured, true_apex, world: World, config: RunConfig, control: Control,
@@ -248,33 +240,36 @@ def _decide_adaptive(measured, true_apex, world: World, config: RunConfig, contr
             state)
 
 
+def liftoff_energy(goal, h, th, hopper: Hopper, wind=None):
+    """The apex energy `m (g z* + ydot_lo^2 / 2)` that a stance on a foothold at height `h`
+    with the touchdown angle `th` aims at to rise to `goal` (`bottom_kd`). With the
+    estimated `wind`, the liftoff speed is `ydot_lo = ydot* - wind t_up`, `t_up` the rise
+    time of a mirrored stance (`mirrored_rise_time`; `jaxhop._models.slip.kernels.energy_kd`);
+    without (`None`), the goal's speed."""
+    ydot_lo = goal[2]
+    if wind is not None:
+        ydot_lo = goal[2] - wind * mirrored_rise_time(goal, h, th, hopper)
+    return hopper.m * (hopper.g * goal[1] + 0.5 * ydot_lo**2)
+
+
 def _stance_energy(true_apex, u, a, heights, world: World, config: RunConfig, adaptive,
                    wind=None):
     """The apex energy the stance aims at (`bottom_kd`), NaN for none: always
     with `energy_feedback`; with the adaptive controller where the foothold sensed at
-    touchdown differs from the corrected map under it (a leg-spring stance only).
-
-    With the estimated `wind`, the energy the rise to the goal needs at liftoff
-    (`jaxhop._models.slip.kernels.energy_kd`, with the rise time of a mirrored stance)."""
+    touchdown differs from the corrected map under it (a leg-spring stance only), with
+    the estimated `wind` (`liftoff_energy`)."""
     goal = world.tables.goals[a]
     hop = world.hopper
-
-    def at_goal_height(ydot):
-        return hop.m * (hop.g * goal[1] + 0.5 * ydot**2)
-
     if config.energy_feedback:
-        return at_goal_height(goal[2])
+        return liftoff_energy(goal, None, None, hop)
     if not adaptive or config.model.instant_stance:
         return None
     landed, foot = sensed_foothold(true_apex, config.model.foot_offset(u, hop),
                                    world.terrain, hop, world.disturbance.wind)
-    ydot_lo = goal[2]
-    if wind is not None:
-        ydot_lo = goal[2] - wind * mirrored_rise_time(goal, foot[1], u[0], hop)
     differs = landed & (foot[1] != mapped_height(foot, heights, world.tables.terrain))
     if config.adaptive_on is not None:
         differs = differs & config.adaptive_on
-    return jnp.where(differs, at_goal_height(ydot_lo), jnp.nan)
+    return jnp.where(differs, liftoff_energy(goal, foot[1], u[0], hop, wind), jnp.nan)
 
 
 def step(apex, key, k, world: World, config: RunConfig, controller=None,

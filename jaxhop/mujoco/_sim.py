@@ -13,7 +13,12 @@ A stride runs from an apex to the next apex in four phases (`docs/mujoco.md`):
   leg swung forward low catches the side of a step up), the leg servo retracts it; the
   stride ends where the body's vertical velocity crosses zero.
 
-The forces are computed in Python each step and applied through two motors. Failures are
+The forces are computed in Python each step and applied through two motors. A wind (a
+horizontal acceleration `wind` in flight, jaxhop's `Disturbance.wind`) is a horizontal
+force of its mass times `wind` on every moving body in descent and ascent, none in stance
+(`data.xfrc_applied`): in flight the whole hopper accelerates at `wind`, as jaxhop's point
+mass. `descent_state` looks ahead in a descent on a copy of the state (the adaptive
+controller's descent measurement). Failures are
 `Result` codes, as jaxhop's stride: `COLLISION` (the body touching a block, the foot
 hitting a block's side or touching one in ascent, a leg collapsed below
 `COLLAPSED rho0`, a liftoff that does not rise, a phase that never ends), `HOLE` (the
@@ -91,6 +96,14 @@ class Simulator:
         self.h_min = float(np.min(terrain.heights))
         self.y_range = terrain.y_range
         self._vel = np.zeros(6)
+        self._ahead = mujoco.MjData(self.model)  # the copy `descent_state` steps
+        # every moving body's mass: the wind force per unit acceleration (world body 0 none)
+        self._masses = np.array(self.model.body_mass)
+        self._masses[0] = 0.0
+
+    def _wind(self, data, wind: float):
+        """Set the wind force of a flight phase (`wind = 0`: none) on every moving body."""
+        data.xfrc_applied[:, 0] = self._masses * wind
 
     # --- state ---------------------------------------------------------------------------
 
@@ -142,10 +155,37 @@ class Simulator:
         arm = point - self.data.geom_xpos[self.foot]
         return abs(v[0] + w[1] * arm[2] - w[2] * arm[1])
 
+    def descent_state(self, t: float, wind: float = 0.0) -> np.ndarray:
+        """The body's `(y, z, ydot)` `t` seconds after the apex the simulator stands at, on
+        a copy of its state flown in descent: the hip and leg servos (the descent's gains)
+        hold the leg at its present angle and length, the wind force on. The leg held, the
+        body flies as the whole hopper (a leg extending would push the body back and
+        forth). The state a stride ends at lies up to one step past its apex (`stride`): the
+        copy flies the rest of `t` from there, its last fraction of a step (or back to `t`
+        when that lies before) on the ballistic flight. The simulator's own state is left
+        as it is."""
+        m, d = self.model, self._ahead
+        mujoco.mj_copyData(d, m, self.data)
+        iy, iz, ih, il = (self.qi[n] for n in ("y", "z", "hip", "leg"))
+        jy, jz, jh, jl = (self.vi[n] for n in ("y", "z", "hip", "leg"))
+        (hp, hv), (lp, lv) = self.hip_gains, self.leg_gains
+        q, v, ctrl = d.qpos, d.qvel, d.ctrl
+        hold, length = float(q[ih]), float(q[il])
+        self._wind(d, wind)
+        left = float(t) + min(float(v[jz]), 0.0) / self.g  # the apex was this long ago
+        dt = m.opt.timestep
+        for _ in range(max(int(np.floor(left / dt + 1e-9)), 0)):
+            ctrl[0] = hp * (hold - q[ih]) - hv * v[jh]
+            ctrl[1] = lp * (length - q[il]) - lv * v[jl]
+            mujoco.mj_step(m, d)
+            left -= dt
+        return np.array([q[iy] + v[jy] * left + 0.5 * wind * left**2,
+                         q[iz] + v[jz] * left - 0.5 * self.g * left**2, v[jy] + wind * left])
+
     # --- one stride ------------------------------------------------------------------------
 
     def stride(self, u, kd_at_bottom=None, record: list | None = None,
-               every: float = 0.01) -> Stride:
+               every: float = 0.01, wind: float = 0.0) -> Stride:
         """From the current apex to the next: touchdown angle `th`, stiffnesses `kc`, `kd`.
 
         Arguments:
@@ -154,6 +194,7 @@ class Simulator:
                 stance (the adaptive controller's energy feedback); its result replaces `kd`.
             record: a list that receives `(t, y, z, foot_y, foot_z, in_stance)` rows every
                 `every` seconds.
+            wind: horizontal acceleration (m/s^2) of the hopper in descent and ascent.
         """
         m, d = self.model, self.data
         th_td, kc, kd = (float(x) for x in u)
@@ -177,7 +218,11 @@ class Simulator:
         fy = fh = th_lo = 0.0
 
         def out(code, why="", apex=nan3):
+            self._wind(d, 0.0)
             return Stride(int(code), apex, foothold, bottom, slide, why)
+
+        wind = float(wind)
+        self._wind(d, wind)
 
         while True:
             if phase == DESCENT:
@@ -206,6 +251,7 @@ class Simulator:
                     if nz < WALL_NORMAL:
                         return out(Result.COLLISION, "foot hit a block's side")
                     phase, t_phase = COMPRESSION, 0.0
+                    self._wind(d, 0.0)
                     foothold = np.array([point[0], point[2]])
                     fy, fh = point[0], point[2]
                 elif xpos[foot_id, 2] - r < hole:
@@ -218,8 +264,9 @@ class Simulator:
                 if v[jz] <= 0.0:
                     # the apex lies within one step before: go back along the parabola
                     back = v[jz] / g
-                    return out(Result.SUCCESS, "", np.array([q[iy] + v[jy] * back,
-                                                         q[iz] + 0.5 * v[jz] * back, v[jy]]))
+                    return out(Result.SUCCESS, "", np.array([
+                        q[iy] + v[jy] * back + 0.5 * wind * back**2,
+                        q[iz] + 0.5 * v[jz] * back, v[jy] + wind * back]))
             else:
                 if dist <= 0.0:
                     slide += self._slip_speed(point) * dt
@@ -237,6 +284,7 @@ class Simulator:
                     if v[jz] <= 0.0:
                         return out(Result.COLLISION, "liftoff without rising")
                     phase, t_phase = ASCENT, 0.0
+                    self._wind(d, wind)
                     th_lo = q[ih] - np.copysign(self.mech.swing, v[jy])
 
     def _polar(self, foothold) -> np.ndarray:
