@@ -99,7 +99,8 @@ class Controller:
         t = descent_time(measured, heights, tables.terrain, hopper)
         return obs, t, descent_noise(_descent_key(key, i, k))
 
-    def _decision(self, measured, footholds, obs, descent, t, sensor, tables, hopper):
+    def _decision(self, measured, footholds, obs, descent, t, sensor, tolerance, tables,
+                  hopper):
         import jax.numpy as jnp
 
         from .._control.foothold import corrected_heights
@@ -110,8 +111,9 @@ class Controller:
             return found, u, a, jnp.asarray(False), tables.terrain.heights, obs
         heights = corrected_heights(footholds, tables.terrain)
         obs = descent_update(obs, measured[2], descent, t, sensor, hopper.g)
-        found, u, a, recovered = self._model.decide_adaptive(obs.estimate, tables, hopper,
-                                                             obs.wind, heights, jnp.nan)
+        found, u, a, recovered = self._model.decide_adaptive(
+            obs.estimate, tables, hopper, obs.wind, heights, jnp.nan, None,
+            jnp.asarray(self.plan.goal, float), tolerance)
         return found, u, a, recovered, heights, obs
 
     def observe(self, obs, measured, footholds, sensor, key, index: int, k: int):
@@ -127,12 +129,14 @@ class Controller:
         return _numpy(obs), float(t), np.asarray(noise)
 
     def decide(self, measured, footholds, obs=None, descent=None, t: float = 0.0,
-               sensor=None):
+               sensor=None, tolerance=(0.05, 0.05, 0.05)):
         """`(found, u, instantiated, recovered, heights, obs)` as NumPy values. The adaptive
         controller takes the observer `obs` after `observe` and the state `descent`
         measured `t` seconds into the descent (with the sensor's half-widths `sensor`),
         updates the observer with it (`descent_update`) and decides on its apex estimate
-        with its wind; `obs` is returned updated (the paper's controller: `None`)."""
+        with its wind, with capture strides near the plan's goal within the run's goal
+        `tolerance` (`jaxhop._control.decisions.decide_slip`); `obs` is returned updated
+        (the paper's controller: `None`)."""
         from .._control.observer import observer_init
 
         if obs is None:
@@ -141,7 +145,7 @@ class Controller:
         out = self._decide(np.asarray(measured, float), footholds, _numpy(obs),
                            zero if descent is None else np.asarray(descent, float),
                            float(t), zero if sensor is None else np.asarray(sensor, float),
-                           self.tables, self.hopper)
+                           np.asarray(tolerance, float), self.tables, self.hopper)
         found, u, a, recovered, heights = (np.asarray(x) for x in out[:5])
         return (bool(found), u, int(a), bool(recovered), heights,
                 _numpy(out[5]) if self.adaptive else None)
@@ -223,7 +227,7 @@ def run_one(sim: Simulator, ctrl: Controller, apex0, index: int, key, sensor, to
             obs, t, noise = ctrl.observe(obs, measured, footholds, sensor, key, index, k)
             descent = sim.descent_state(t, wind) + noise * sensor
             found, u, a, recovered, heights, obs = ctrl.decide(measured, footholds, obs,
-                                                               descent, t, sensor)
+                                                               descent, t, sensor, tolerance)
             if observed is not None:
                 observed.append(obs)
         else:
