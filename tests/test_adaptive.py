@@ -292,6 +292,28 @@ def _posterior_information_form(x0, p0, h, r, m):
     return p @ (np.linalg.inv(p0) @ x0 + h.T @ np.linalg.inv(r) @ m), p
 
 
+def test_descent_measurement_over_a_hole_times_the_fall_to_the_nearest_block():
+    # Over the hole of `reference` (4.2-5.2 m) the map has no block under the apex. The
+    # foot lands on a block beside it, so the leg is placed half way through the fall to
+    # the nearest one: a wind-blind first decision there turned runs from (5.0, 1.8, 0.5)
+    # back into the hole in the paper's headwind.
+    from jaxhop._control.observer import DESCENT_FRACTION, descent_time
+
+    terrain = builtin_terrain("reference")
+
+    def fall(z, h):  # by hand: DESCENT_FRACTION of the fall to the foot at rest length on h
+        return DESCENT_FRACTION * np.sqrt(2.0 * (z - h - HOP.rho0) / HOP.g)
+
+    cases = [((5.0, 1.8), 0.2),   # over the hole, 0.2 m from the block at 5.2 m (h 0.2)
+             ((4.3, 1.8), -0.2),  # over the hole, 0.1 m past the block ending at 4.2 m
+             ((4.7, 1.8), 0.2),   # half way: both 0.5 m away, the higher one
+             ((3.0, 1.8), 0.1),   # on a block: its own height
+             ((10.4, 1.5), 0.0)]  # past the map's end: the last block
+    for (y, z), h in cases:
+        t = descent_time(jnp.array([y, z, 0.5]), terrain.heights, terrain, HOP)
+        np.testing.assert_allclose(float(t), fall(z, h), rtol=1e-12, err_msg=str((y, z)))
+
+
 def test_descent_fusion_is_the_gaussian_posterior_of_both_measurements():
     from jaxhop._control.observer import PROCESS_VAR, R_MIN, fuse_descent
 

@@ -206,9 +206,14 @@ def fuse_descent(obs: Observer, descent, t, sensor, g) -> Observer:
 def descent_time(measured, heights, terrain: Terrain, hopper: Hopper):
     """When the descent measurement is taken: `DESCENT_FRACTION` of the time of the fall
     from the measured apex until the foot (at rest length below the body) reaches the
-    corrected map (block `heights`) under it; 0 where the map has no block there."""
+    corrected map (block `heights`) under it; over a hole or off the map, the nearest
+    block's top (the higher of two as near), where the foot will land."""
     ground = mapped_height(measured[:2], heights, terrain)
-    fall = jnp.where(jnp.isfinite(ground), measured[1] - ground - hopper.rho0, 0.0)
+    gap = jnp.maximum(jnp.maximum(terrain.starts - measured[0], measured[0] - terrain.ends),
+                      0.0)
+    nearest = jnp.max(jnp.where(gap == jnp.min(gap), heights, -jnp.inf))
+    ground = jnp.where(jnp.isfinite(ground), ground, nearest)
+    fall = measured[1] - ground - hopper.rho0
     return DESCENT_FRACTION * jnp.sqrt(2.0 * jnp.maximum(fall, 0.0) / hopper.g)
 
 
