@@ -273,15 +273,14 @@ def capture_target(apex, goal, tolerance, h, hopper: Hopper):
     return near, jnp.stack([goal[0] - 1.5 * v * t_fall, goal[1], v])
 
 
-def decide_slip(apex, tables: PlanTables, hopper: Hopper, n_candidates: int = SLIP_CANDIDATES,
-                recover: bool = False, heights=None, wind=None, recover_again=True,
-                capture=None):
+def decide_slip(apex, tables: PlanTables, hopper: Hopper, recover: bool = False, heights=None,
+                wind=None, recover_again=True, capture=None):
     """SLIP controls for one measured apex: the deadbeat on the best SLIP-reachable match.
 
     The BHop plan's domains and goals ignore what the SLIP stance cannot do (the paper's
     eqs 35-37 only approximate it), so the goal of the first match may be out of one SLIP
     stride's reach (e.g. stopping at the global goal from a foothold a few cm off). The
-    controller runs the SLIP deadbeat (eqs 12-16) for the `n_candidates` highest-priority
+    controller runs the SLIP deadbeat (eqs 12-16) for the `SLIP_CANDIDATES` highest-priority
     matching policies, predicts each stride over the policy's foothold height, and takes the
     first in deployment order whose prediction lies within `SLIP_ACCEPT` of its goal; when
     none does, the one with the smallest miss relative to `SLIP_ACCEPT`. The deadbeat's
@@ -337,7 +336,7 @@ def decide_slip(apex, tables: PlanTables, hopper: Hopper, n_candidates: int = SL
 
     def choose(apex, exclude):
         ids, pos, recovered = _match_positions(apex, tables, hopper, recover, exclude)
-        neg, k = jax.lax.top_k(-pos, n_candidates)
+        neg, k = jax.lax.top_k(-pos, SLIP_CANDIDATES)
         valid = -neg < _NO_MATCH
         sit = ids[k]
         inst = tables.best_inst[sit]
@@ -345,7 +344,7 @@ def decide_slip(apex, tables: PlanTables, hopper: Hopper, n_candidates: int = SL
         h = tables.table.centre[sit // nt, 1]
         if heights is not None:
             h = heights[tables.table.seg_block[sit // nt]]
-        captures = near & (jnp.arange(n_candidates) == 1)
+        captures = near & (jnp.arange(SLIP_CANDIDATES) == 1)
         if capture is not None:  # near the goal the capture stride replaces the second match
             valid = valid | captures
             sit = jnp.where(captures, -1, sit)
@@ -419,14 +418,14 @@ class Model(eqx.Module):
         raise NotImplementedError
 
     def decide_adaptive(self, apex, tables: PlanTables, hopper: Hopper, wind, heights,
-                        h_touch, on=None, goal=None, tolerance=None):
+                        h_touch, on=None, capture=None):
         """The adaptive controller's decision with the estimated `wind` (`None`: the
         model's deadbeat is wind-blind) on the corrected map's block `heights`, with the
         foothold height `h_touch` sensed for an instantaneous stance (else NaN),
         recovering an apex in no domain: `(found, u, instantiated, recovered)`. `on`
         (traced, `None`: on): the adaptive parts switched on (the run loop drops a
-        recovered decision where they are off). `goal`, `tolerance`: the run's global goal
-        and its tolerance, for a SLIP's capture strides (`None`: none)."""
+        recovered decision where they are off). `capture = (goal, tolerance)`: the run's
+        global goal and its tolerance, for a SLIP's capture strides (`None`: none)."""
         raise NotImplementedError
 
     def foot_offset(self, u, hopper: Hopper):
@@ -448,7 +447,7 @@ class _BHop(Model):
         return decide_bhop(apex, tables, hopper)
 
     def decide_adaptive(self, apex, tables, hopper, wind, heights, h_touch, on=None,
-                        goal=None, tolerance=None):
+                        capture=None):
         return decide_bhop(apex, tables, hopper, wind, heights, h_touch)
 
     def foot_offset(self, u, hopper):
@@ -469,9 +468,9 @@ class _Slip(Model):
         return decide_slip(apex, tables, hopper)
 
     def decide_adaptive(self, apex, tables, hopper, wind, heights, h_touch, on=None,
-                        goal=None, tolerance=None):
+                        capture=None):
         on = jnp.asarray(True) if on is None else on
-        capture = None if goal is None else (goal, tolerance, on)
+        capture = None if capture is None else (*capture, on)
         return decide_slip(apex, tables, hopper, recover=True, heights=heights, wind=wind,
                            recover_again=on, capture=capture)
 

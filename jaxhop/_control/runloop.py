@@ -229,8 +229,8 @@ def _decide_adaptive(measured, true_apex, world: World, config: RunConfig, contr
         h_touch = jnp.where(landed, foot[1], jnp.nan)
     found, u, a, recovered = model.decide_adaptive(state, world.tables, world.hopper,
                                                    obs.wind if model.observes else None,
-                                                   heights, h_touch, on, config.goal,
-                                                   config.tolerance)
+                                                   heights, h_touch, on,
+                                                   (config.goal, config.tolerance))
     if on is not None:
         found = found & (on | ~recovered)
         recovered = recovered & on

@@ -113,7 +113,7 @@ class Controller:
         obs = descent_update(obs, measured[2], descent, t, sensor, hopper.g)
         found, u, a, recovered = self._model.decide_adaptive(
             obs.estimate, tables, hopper, obs.wind, heights, jnp.nan, None,
-            jnp.asarray(self.plan.goal, float), tolerance)
+            (jnp.asarray(self.plan.goal, float), tolerance))
         return found, u, a, recovered, heights, obs
 
     def observe(self, obs, measured, footholds, sensor, key, index: int, k: int):
@@ -361,11 +361,12 @@ class _one_thread_each:
 
 def job_for(terrain: Terrain, plan, mech: Mechanics = DEFAULT, controller: str = "adaptive",
             disturbance: Disturbance | None = None, tolerance=(0.05, 0.05, 0.05),
-            max_steps: int = 60, seed: int = 0, stride_error=STRIDE_ERROR) -> Job:
+            max_steps: int = 60, seed: int = 0) -> Job:
     """A `Job` from jaxhop objects: runs on the true `terrain` under `plan` (built on the
     planner's map), the sensor noise and the wind from `disturbance` (MuJoCo runs have no
-    landing error: a `disturbance` with one is refused); `stride_error` for the adaptive
-    controller's observer (`Controller`)."""
+    landing error: a `disturbance` with one is refused). The adaptive controller's
+    observer allows for `STRIDE_ERROR` (`Controller`; `dataclasses.replace(job,
+    stride_error=None)` runs jaxhop's observer as it is)."""
     sensor, wind = (0.0, 0.0, 0.0), 0.0
     if disturbance is not None:
         if float(disturbance.landing) != 0.0:
@@ -374,7 +375,7 @@ def job_for(terrain: Terrain, plan, mech: Mechanics = DEFAULT, controller: str =
         wind = float(disturbance.wind)
     return Job(terrain.to_dict(), plan, mech, controller, sensor,
                tuple(float(x) for x in np.asarray(tolerance)), int(max_steps), int(seed),
-               wind, None if stride_error is None else tuple(float(x) for x in stride_error))
+               wind)
 
 
 def summarize_runs(result: dict, seconds: float) -> dict:
