@@ -217,9 +217,15 @@ def descent_time(measured, heights, terrain: Terrain, hopper: Hopper):
     return DESCENT_FRACTION * jnp.sqrt(2.0 * jnp.maximum(fall, 0.0) / hopper.g)
 
 
+def descent_key(run_key, k):
+    """The key of the descent measurement after apex `k` of the run drawing from
+    `run_key` (`descent_noise`): jaxhop's run loop and the MuJoCo runner draw the same."""
+    return jax.random.fold_in(jax.random.fold_in(run_key, k), 1)
+
+
 def descent_noise(key):
     """The uniforms in `[-1, 1)` of a descent measurement, ordered `(y, z, ydot)`: the
-    velocity's from `key`, the position's from `fold_in(key, 1)`."""
+    velocity's from `key` (`descent_key`), the position's from `fold_in(key, 1)`."""
     velocity = jax.random.uniform(key, minval=-1.0, maxval=1.0)
     position = jax.random.uniform(jax.random.fold_in(key, 1), (2,), minval=-1.0, maxval=1.0)
     return jnp.stack([position[0], position[1], velocity])

@@ -36,6 +36,7 @@ from .foothold import Footholds, corrected_heights, footholds_init, mapped_heigh
 from .observer import (
     Observer,
     after_stride,
+    descent_key,
     descent_noise,
     descent_time,
     descent_update,
@@ -290,9 +291,8 @@ def step(apex, key, k, world: World, config: RunConfig, controller=None,
     true_apex = apex.at[0].add(noise[3] * dist.landing) if config.landing else apex
     heights = world.tables.terrain.heights
     if adaptive:
-        descent_key = jax.random.fold_in(jax.random.fold_in(key, k), 1)
         found, u, a, recovered, control, heights, decided_on = _decide_adaptive(
-            measured, true_apex, world, config, control, descent_key)
+            measured, true_apex, world, config, control, descent_key(key, k))
     elif controller is None:
         found, u, a = config.model.decide(measured, world.tables, world.hopper)
     else:

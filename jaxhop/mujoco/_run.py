@@ -91,13 +91,15 @@ class Controller:
 
     def _observation(self, obs, measured, footholds, sensor, key, i, k, tables, hopper,
                      stride_error=None):
+        import jax
+
         from .._control.foothold import corrected_heights
-        from .._control.observer import descent_noise, descent_time
+        from .._control.observer import descent_key, descent_noise, descent_time
 
         heights = corrected_heights(footholds, tables.terrain)
         obs = self._model.observe(obs, measured, sensor, hopper, stride_error=stride_error)
         t = descent_time(measured, heights, tables.terrain, hopper)
-        return obs, t, descent_noise(_descent_key(key, i, k))
+        return obs, t, descent_noise(descent_key(jax.random.fold_in(key, i), k))
 
     def _decision(self, measured, footholds, obs, descent, t, sensor, tolerance, tables,
                   hopper):
@@ -167,13 +169,6 @@ def _noise(key, i, k):
 
     return jax.random.uniform(jax.random.fold_in(jax.random.fold_in(key, i), k), (3,),
                               minval=-1.0, maxval=1.0)
-
-
-def _descent_key(key, i, k):
-    """The key of apex `k`'s descent measurement in run `i`, as `runloop.step`'s."""
-    import jax
-
-    return jax.random.fold_in(jax.random.fold_in(jax.random.fold_in(key, i), k), 1)
 
 
 def _mapped_height(foot, heights, terrain: Terrain) -> float:
