@@ -103,6 +103,7 @@ def flat_plan():
     return get_plan(terrain, np.asarray(terrain.goal))
 
 
+@pytest.mark.slow
 def test_recovery_takes_the_nearest_domain(flat_plan):
     tables = flat_plan.tables()
     # Over the flat floor, the foot landing mid-segment 7, ydot = 0.5: the templates'
@@ -129,6 +130,7 @@ def test_recovery_takes_the_nearest_domain(flat_plan):
     assert not bool(found) and not bool(recovered)
 
 
+@pytest.mark.slow
 def test_adaptive_equals_paper_without_disturbance(flat_plan):
     grid = sweep_grid(flat_plan.terrain, dy=0.2, dz=0.2)
     initial = grid[in_global_domain(grid, flat_plan.tables(), flat_plan.hopper)]
@@ -170,6 +172,7 @@ def _slip_targets(wind, n, seed):
     return jnp.asarray(apex), goal, jnp.asarray(u), fly
 
 
+@pytest.mark.slow
 def test_slip_adaptive_deadbeat_reaches_the_goal_in_the_wind():
     from jaxhop._models.slip.deadbeat import deadbeat_slip
     from jaxhop._models.slip.stride import slip_stride
@@ -213,6 +216,7 @@ def _slip_observer_loop(wind, n, seed):
     return np.asarray(out)
 
 
+@pytest.mark.slow
 def test_slip_observer_converges_to_a_constant_wind():
     est = _slip_observer_loop(-0.2, 5, 0)
     assert est[0] == 0.0

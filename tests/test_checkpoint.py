@@ -59,6 +59,7 @@ def _interrupt_after(n_saves, monkeypatch, plan, init, execution, **kw):
     return saved
 
 
+@pytest.mark.slow
 def test_interrupted_sweep_resumes(setup, tmp_path, monkeypatch):
     plan, init = setup
     kw = dict(settings=PAPER, key=jax.random.key(3), disturbance=disturbance_for("sensor"))
@@ -91,6 +92,7 @@ def test_interrupted_sweep_resumes(setup, tmp_path, monkeypatch):
     assert len(computed) == n_chunks
 
 
+@pytest.mark.slow
 def test_interrupted_pool_sweep_resumes(setup, tmp_path, monkeypatch):
     # The lane pool (SLIP sweeps' executor) saves a chunk when its last run ends; an
     # interrupted pool sweep resumes with only the missing runs and equals the chunked one.

@@ -40,6 +40,7 @@ def test_bad_arguments_exit_2(capsys, argv, needle):
     assert needle in err and len(err.splitlines()) == 1
 
 
+@pytest.mark.slow
 def test_plan_and_run_json(tmp_path, monkeypatch, capsys):
     monkeypatch.setenv("JAXHOP_CACHE", str(tmp_path / "cache"))
     out = tmp_path / "p.json"
@@ -84,6 +85,7 @@ def test_step_slip_equal_stiffness_conserves_energy(tmp_path):
     assert abs(e1 - e0) / e0 < 1e-8
 
 
+@pytest.mark.slow
 def test_run_animate_writes_a_gif(tmp_path, monkeypatch, capsys):
     from PIL import Image
 

@@ -43,6 +43,7 @@ class _Gathered(Exception):
     pass
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("count", [2, 3, 40])
 def test_faked_processes_gather_the_one_process_result(setup, monkeypatch, count):
     """Each faked process computes only its chunks; the gathered batch equals one process's."""

@@ -41,6 +41,7 @@ def _xy(line):
     return np.asarray(line.get_xydata(), float)
 
 
+@pytest.mark.slow
 def test_explore_draws_the_runs_and_policies_of_run_batch():
     plan = jaxhop.get_plan(jaxhop.builtin_terrain("flat"), progress=False)
     ex = jaxhop.explore(plan, [0.4, 1.6, 0.5])
@@ -92,6 +93,7 @@ def test_explore_draws_the_runs_and_policies_of_run_batch():
     assert f"paper controller, wind, seed 3: {name} in {int(windy['steps'][0])}" in windy_status
 
 
+@pytest.mark.slow
 def test_explore_stride_draws_slip_stride_and_deadbeat_slip():
     hop = jaxhop.Hopper()
     st = jaxhop.explore_stride(hop, (0.0, 1.3, 1.0))

@@ -69,6 +69,7 @@ def wrong_map():
     return plan, true, grid[in_global_domain(grid, plan.tables(), HOP)]
 
 
+@pytest.mark.slow
 def test_bhop_stance_on_a_misperceived_block_reaches_the_goal_with_the_sensed_height(wrong_map):
     plan, true, states = wrong_map
     world = World(plan.tables(), true, HOP, Disturbance())

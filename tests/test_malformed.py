@@ -552,6 +552,7 @@ def _mkroot(tmp_path):
     return str(tmp_path / "cases")
 
 
+@pytest.mark.slow
 def test_malformed_inputs_exit_2(tmp_path, capsys, tripwires):
     cases = generate(_mkroot(tmp_path))
     failures = []

@@ -102,6 +102,7 @@ def test_jump_planned_in_wind_lands_on_the_planned_point(wind):
     assert n_ok >= 3
 
 
+@pytest.mark.slow
 def test_still_air_path_and_zero_wind_agree():
     env = load_course("mppc-sim-1").environment
     arrays = [jnp.asarray(q) for q in (env.front, env.back, env.height)]
@@ -160,6 +161,7 @@ def test_round_room():
     assert Settings().round_room(0.01) == 0.0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["mppc-sim-1", "random-3", "mppc-hw-dynamic-2"])
 def test_polish_never_slower_and_passes_the_checker(name):
     course = random_course(3) if name == "random-3" else load_course(name)
@@ -185,6 +187,7 @@ def test_polish_never_slower_and_passes_the_checker(name):
     assert helped >= 1
 
 
+@pytest.mark.slow
 def test_disturbed_run_under_wind_finishes_a_shipped_course():
     course = load_course("mppc-hw-static")
     out = run_mppc_noisy(course, "wind", seed=0)

@@ -145,6 +145,7 @@ def test_dp_against_brute_force(seed):
             assert total == pytest.approx(brute)
 
 
+@pytest.mark.slow
 def test_horizon_rule_smallest_n():
     course = load_course("mppc-sim-1")
     planner = MPPC()
@@ -174,6 +175,7 @@ def test_sim1_end_to_end_and_no_recompilation():
         assert b["xs"] == pytest.approx(a["x1"], abs=1e-9)
 
 
+@pytest.mark.slow
 def test_random_course_finishes_when_reachable():
     course = random_course(7)
     planner = MPPC()

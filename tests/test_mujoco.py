@@ -239,6 +239,7 @@ class _Fixed:
         return True, self.u, 0, False, np.asarray(FLAT.heights), None
 
 
+@pytest.mark.slow
 def test_runner_loop_follows_slip_strides_and_stops():
     import jax
 
@@ -314,6 +315,7 @@ def test_missing_mujoco_is_one_line_exit_2(capsys, monkeypatch):
     assert "pip install 'jaxhop[mujoco]'" in err and len(err.splitlines()) == 1
 
 
+@pytest.mark.slow
 @pytest.mark.heavy
 def test_cli_run_and_sweep_with_the_slip_controller(tmp_path, capsys):
     """`jaxhop run/sweep --sim mujoco` end to end with jaxhop's SLIP decision (a minute of
@@ -338,6 +340,7 @@ def test_cli_run_and_sweep_with_the_slip_controller(tmp_path, capsys):
     assert s["n_initial_conditions"] == 4 and "slip" in s["failures"]
 
 
+@pytest.mark.slow
 @pytest.mark.heavy
 def test_adaptive_controller_learns_the_wind_in_mujoco():
     """The adaptive controller on the MuJoCo hopper under the named `wind` noise, on flat

@@ -53,6 +53,7 @@ def test_dimensionless_templates_are_size_independent():
     assert f["length"] == 0.19
 
 
+@pytest.mark.slow
 def test_regions_scale_like_froude_similarity():
     # Independent of the scaling code: the regions computed for the small hopper are the
     # reference regions with lengths times rho0 and speeds times sqrt(g rho0 / 9.81).
@@ -94,6 +95,7 @@ def flat_plans():
     return ref, scaled, ours
 
 
+@pytest.mark.slow
 def test_reference_plan_from_scaled_templates_is_identical(flat_plans):
     ref, scaled, _ = flat_plans
     assert np.array_equal(ref.order, scaled.order)
@@ -102,6 +104,7 @@ def test_reference_plan_from_scaled_templates_is_identical(flat_plans):
     assert (ref.prepares != scaled.prepares).nnz == 0
 
 
+@pytest.mark.slow
 def test_course_builder_matches_build_plan(flat_plans):
     # With every block allowed, the course builder is `jaxhop.build_plan` stage for stage.
     ref, _, ours = flat_plans
@@ -345,6 +348,7 @@ def test_lattice_segments_leave_no_gap_inside_the_floor(name):
         assert n[0] == n[1]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("align", [False, True])
 def test_update_dependency_tests_are_sufficient(align):
     # The tests that let an update keep old results, checked directly on the tall

@@ -51,6 +51,7 @@ def _domain_brute(z, plan):
     return out
 
 
+@pytest.mark.slow
 def test_prepares_relation_against_brute_force(plan):
     rng = np.random.default_rng(0)
     p = plan.prepares.tocsr()
@@ -61,6 +62,7 @@ def test_prepares_relation_against_brute_force(plan):
             assert plan.target[a] in row  # the goal lies in the domain it was chosen for
 
 
+@pytest.mark.slow
 def test_deployment_invariant(plan):
     assert check_order(plan.order, plan.prepares, plan.situated, plan.is_goal)
     # Independent of the stored relation: every non-goal policy's goal lies in the domain of
@@ -86,6 +88,7 @@ def test_nominal_sweep_is_correct_by_construction(plan):
     assert summary["success_rate"] == 1.0 and summary["failures"]["solver"] == 0
 
 
+@pytest.mark.slow
 def test_run_jit_vmap_and_seed_reproducibility(plan):
     tables = plan.tables()
     starts = np.array([[0.4, 1.6, 0.5], [1.2, 1.9, 0.5], [2.0, 1.4, 0.5]])
@@ -113,6 +116,7 @@ def test_run_jit_vmap_and_seed_reproducibility(plan):
     assert not np.array_equal(other["apexes"], batched["apexes"])
 
 
+@pytest.mark.slow
 def test_vmap_equals_loop_for_first_match(plan):
     tables = plan.tables()
     rng = np.random.default_rng(3)
@@ -165,6 +169,7 @@ def test_cache_round_trip_and_corruption(tmp_path, monkeypatch, plan):
     np.testing.assert_array_equal(rebuilt.order, first.order)
 
 
+@pytest.mark.slow
 def test_padded_tables_match_as_the_plans_own_and_share_one_shape(plan):
     # Padding for one compiled controller must never match: first matches through the
     # bucketed tables are the brute-force ones, recovery picks what the plan's own tables
@@ -198,6 +203,7 @@ def test_padded_tables_match_as_the_plans_own_and_share_one_shape(plan):
     assert jax.tree.leaves(shapes[0]) == jax.tree.leaves(shapes[1])
 
 
+@pytest.mark.slow
 def test_shipped_template_boxes_are_the_ones_computed_op_by_op():
     """The built-in templates' boxes that ship with jaxhop (read instead of computed) are
     the boxes computed anew, and a plan reads them (bit for bit on the machine that wrote

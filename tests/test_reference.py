@@ -122,6 +122,7 @@ def test_touchdown(wind):
         assert (t1, y1, *v1) == (t[i], y[i], *v[i])
 
 
+@pytest.mark.slow
 def test_regions_and_boxes():
     templates = paper_templates()
     rtm = R.Templates(templates.as_array(), templates.seg_length)
@@ -161,6 +162,7 @@ def _tie_ok(rp, jp, a):
     return margin[ia, ib] >= margin.max() - TIE
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name,full", CASES)
 def test_instantiated_policies(name, full):
     _, _, jp, rp = _plans(name, full)
@@ -179,6 +181,7 @@ def test_instantiated_policies(name, full):
     assert np.array_equal(rp.robustness[same], jp.robustness[same])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name,full", CASES)
 def test_prepares_safety_sampling_and_deployment(name, full):
     """On the JAX plan's goals, the twin gives the same P, scores and total order."""
@@ -208,6 +211,7 @@ def _initial(terrain, ctrl, step=1):
     return grid[R.in_global_domain(ctrl, grid)][::step]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name,full", CASES)
 def test_first_match_and_decision(name, full):
     terrain, _, jp, rp = _plans(name, full)
@@ -228,6 +232,7 @@ def test_first_match_and_decision(name, full):
             assert ctrl.first_match_scan(z) == (True, a)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name,full", CASES)
 @pytest.mark.parametrize("noise", ["none", "wind"])
 def test_sweep_outcomes(name, full, noise):
@@ -248,6 +253,7 @@ def test_sweep_outcomes(name, full, noise):
         assert np.all(ref["code"] == 0)
 
 
+@pytest.mark.slow
 def test_sensor_noise_with_shared_draws():
     """Sensor noise: the twin cannot reproduce JAX's RNG, so it is fed JAX's draws."""
     terrain, _, jp, rp = _plans("flat")
@@ -270,6 +276,7 @@ def test_sensor_noise_with_shared_draws():
     assert np.array_equal(ref["steps"], jx["steps"])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name,full", CASES)
 def test_end_to_end_sweep(name, full):
     """Twin plan + twin sweep against JAX plan + JAX sweep (nominal)."""

@@ -80,6 +80,7 @@ def compare_strides(seed, n):
     return code, err
 
 
+@pytest.mark.slow
 def test_strides_equal_jax():
     code, err = compare_strides(seed=0, n=200)
     # Every kind of stride happened: completed, collisions, holes, off the map.
@@ -145,6 +146,7 @@ def compare_deadbeat(apex, goal, h):
     return ok
 
 
+@pytest.mark.slow
 def test_deadbeat_equals_jax():
     apex, goal, h = reachable_targets(10, 7)
     assert len(apex) >= 4
@@ -152,6 +154,7 @@ def test_deadbeat_equals_jax():
     assert ok.sum() >= 3
 
 
+@pytest.mark.slow
 def test_deadbeat_least_squares_reaches_targets():
     apex, goal, h = reachable_targets(11, 4)
     assert len(apex) >= 1
@@ -194,6 +197,7 @@ def _subsample(initial, n, seed):
     return initial[np.sort(rng.choice(len(initial), n, replace=False))]
 
 
+@pytest.mark.slow
 def test_slip_decisions_equal_jax():
     """The SLIP deadbeat to the first match of sampled sweep states, twin vs JAX (the
     twin's `decide_slip` with one candidate; the slow sweep test runs the full decision)."""

@@ -38,6 +38,7 @@ def _goal_grid(tmpl, n=41):
     return jnp.stack([(0.5 * (lo + hi)).ravel(), ZR.ravel(), YD.ravel()], 1)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("t", range(20))
 def test_closed_form_goal_matches_definition(t):
     """Eq 6 by brute force (dense domain sample + deadbeat + limits) vs the closed form.
@@ -76,6 +77,7 @@ def test_goal_position_bounds_match_definition():
         assert ok == (float(lo) <= y <= float(hi)) or min(abs(y - lo), abs(y - hi)) < 1e-9
 
 
+@pytest.mark.slow
 def test_height_bounds_agree_with_membership():
     tmpl = TEMPLATES.row(8)
     yd, zr = np.meshgrid(np.linspace(-3, 2, 26), np.linspace(0.02, 2.4, 60), indexing="ij")
@@ -98,6 +100,7 @@ def test_printed_equations_disagree_with_definition():
     assert abs(zl_p - zl) > 0.05 or abs(zh_p - zh) > 0.05
 
 
+@pytest.mark.slow
 def test_domain_matches_touchdown_definition():
     """D(Phi) of eqs 38-41: touchdown of the nominal descent falls on [-l, l]."""
     rng = np.random.default_rng(0)
@@ -114,6 +117,7 @@ def test_domain_matches_touchdown_definition():
         assert bool(template_domain_contains(z, tmpl, HOP)) == bool(expect)
 
 
+@pytest.mark.slow
 def test_collision_free_bounds_match_simulated_descent_and_rise():
     """The y bounds used for instantiation agree with the simulator's touchdown test."""
     terrain = builtin_terrain("reference")
@@ -141,6 +145,7 @@ def test_collision_free_bounds_match_simulated_descent_and_rise():
     assert float(hi) < 2.0 + 0.5 * np.sqrt(2 * 0.9 / HOP.g) and float(lo) > 1.0
 
 
+@pytest.mark.slow
 def test_bounds_on_a_grid_equal_the_bounds_of_each_cell():
     """The grid form of the collision bounds (block axis in front, fall and rise times per
     grid column) gives, cell by cell, the bounds of that one apex (to rounding: op by op,

@@ -21,6 +21,7 @@ def _load(path) -> dict:
     return {k: v for k, v in data.items() if k not in TIMING_KEYS}
 
 
+@pytest.mark.slow
 def test_same_command_twice_same_json(tmp_path):
     a, b = tmp_path / "a.json", tmp_path / "b.json"
     assert main(COMMAND + ["--json", str(a)]) == 0

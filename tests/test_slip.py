@@ -120,6 +120,7 @@ def test_strides_match_solve_ivp():
     _compare_with_scipy(seed=1, n=160, need=100)
 
 
+@pytest.mark.slow
 def test_decision_strides_stay_within_a_tenth_of_a_millimetre_of_solve_ivp():
     # A controller's decision polishes and predicts at DECISION_TOL (docs/slip.md): its
     # strides must stay far inside the decision's 5 cm acceptance (measured: 5e-5 at most
@@ -163,6 +164,7 @@ def test_fixed_shape_stance_of_a_bare_spring_matches_the_closed_form():
                                atol=1e-6)
 
 
+@pytest.mark.slow
 def test_fixed_shape_strides_agree_with_the_exact_stride():
     # An accelerator's decisions take a fixed number of steps per phase; on 2 000 random
     # strides (half of them under wind) they end as the 1e-10 stride does, with apexes
@@ -185,6 +187,7 @@ def test_fixed_shape_strides_agree_with_the_exact_stride():
     assert np.abs(nxt - ref)[ok].max() <= 1e-5
 
 
+@pytest.mark.slow
 def test_apex_map_equals_stride_on_flat_ground_and_vmap_equals_loop():
     apex, u = random_strides(2, 4)
     a, c, _ = stride_batch(jnp.asarray(apex), jnp.asarray(u), FLAT, HOP)
@@ -196,6 +199,7 @@ def test_apex_map_equals_stride_on_flat_ground_and_vmap_equals_loop():
         np.testing.assert_allclose(single(apex[i], u[i], 0.0, HOP)[0], b[i], atol=1e-12)
 
 
+@pytest.mark.slow
 def test_equal_stiffness_conserves_apex_energy():
     apex, u = random_strides(3, 24)
     u[:, 2] = u[:, 1]
@@ -210,6 +214,7 @@ def test_equal_stiffness_conserves_apex_energy():
     assert np.max(rel[ok]) < 1e-8
 
 
+@pytest.mark.slow
 def test_slip_strides_in_device_chunks_equal_single_strides():
     from jaxhop._models.slip.stride import slip_strides
 
@@ -226,6 +231,7 @@ def test_slip_strides_in_device_chunks_equal_single_strides():
         slip_strides(apex, u[:, :2], FLAT, HOP)
 
 
+@pytest.mark.slow
 def test_bottom_kd_lifts_off_with_the_target_energy():
     # `energy=` replaces kd by eq 12 evaluated at the actual bottom: whatever the ground
     # height (0 here, or 0.1 m lower than a planner would think), the next apex carries the
@@ -263,6 +269,7 @@ def _scaled_map(v, tol):
     return slip_apex_map(GRAD_APEX, v * jnp.array([1.0, MG, MG]), 0.0, HOP, tol)[0]
 
 
+@pytest.mark.slow
 def test_apex_map_gradients_match_finite_differences():
     forward = Tolerances(1e-12, 1e-12, diffrax.ForwardMode())
     jac = jax.jit(jax.jacfwd(lambda v: _scaled_map(v, forward)))(GRAD_U)
@@ -355,6 +362,7 @@ def test_golden_section_pitfall_still_present_or_fixed():
     assert abs(raw - 7.3) < 1e-6 or not (5.0 <= raw <= 10.0) or abs(raw - 7.3) > 1e-3
 
 
+@pytest.mark.slow
 def test_stride_failures_on_terrain():
     wall = make_terrain([(0.0, 1.0, 0.0), (1.0, 2.0, 0.45)])
     u = jnp.array([0.0, 30 * MG, 30 * MG])
@@ -408,6 +416,7 @@ def deadbeat_errors(method, seed, n, extra=()):
     return within, pos, vel, np.asarray(u)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("method", ["bracket", "gradient"])
 def test_deadbeat_recovers_targets_small(method):
     # "bracket" also gets the targets on which a single bisection ended on the wrong branch.
@@ -416,6 +425,7 @@ def test_deadbeat_recovers_targets_small(method):
     assert len(within) >= 3 + len(extra) and np.all(within)
 
 
+@pytest.mark.slow
 def test_gradient_solver_never_tries_a_non_finite_point(monkeypatch):
     # A start whose stride fails has a constant residual, a zero Jacobian and a singular
     # normal matrix. The step used to be NaN; every later trial then ran a NaN stance to

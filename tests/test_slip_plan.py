@@ -108,6 +108,7 @@ def _flat_slip_table():
     return terrain, slip, table, centre, centre.shape[0] // 2
 
 
+@pytest.mark.slow
 def test_candidate_situated_uses_the_slip_foot():
     # On flat ground, an apex whose SLIP foot (lead Y ahead) lands on segment k is matched
     # to segment k's policies, and the BHop lookup puts it on another segment.
@@ -161,6 +162,7 @@ def test_templates_for_rejects_unknown_model():
         templates_for("ballistic")
 
 
+@pytest.mark.slow
 def test_fitted_eq35_band_holds_most_slip_strides():
     # The default h(v) was fitted to the 10th/90th percentiles of simulated strides; on a
     # fresh sample (other seed) the band [h(v_avg), -h(-v_avg)] must hold roughly 80 % of
@@ -209,6 +211,7 @@ def _random_strides(seed, n, ydot, th, zr_lo=0.1):
     return apex, u, np.asarray(nxt), np.asarray(code)
 
 
+@pytest.mark.slow
 def test_a_reversing_stride_lifts_off_behind_its_foot():
     # The physics behind the reversal rule of `slip_shift_limits`, checked on simulated
     # strides: the leg force points away from the foot, so a stance that turns forward
@@ -235,6 +238,7 @@ def test_a_reversing_stride_lifts_off_behind_its_foot():
     assert (dy[keep] > 0).any() and (dy[keep] < 0).any()
 
 
+@pytest.mark.slow
 def test_a_stride_moving_forward_before_and_after_lifts_off_ahead_of_its_touchdown():
     # The physics behind the direction rule of `slip_shift_limits`, on simulated strides
     # with the foot on either side: the horizontal speed changes sign at most once in
@@ -256,6 +260,7 @@ def test_a_stride_moving_forward_before_and_after_lifts_off_ahead_of_its_touchdo
     assert np.all(up[fwd] >= down[fwd]) and np.all(up[back] <= down[back])
 
 
+@pytest.mark.slow
 def test_a_stride_moving_backward_before_and_after_never_moves_forward():
     # Why the leg's SLIP templates keep only forward bands: the leg force points away from
     # the foot, so the horizontal speed changes sign at most once in stance; a stride whose
@@ -562,6 +567,7 @@ def test_a_slip_decision_for_a_small_leg_is_the_reference_decision_in_froude_uni
     assert slip_scales(leg)[1] == pytest.approx(1e-4 * length**2, rel=1e-14)
 
 
+@pytest.mark.slow
 def test_goal_policies_reach_a_goal_at_rest_on_its_own_segment_only():
     # The direction rule with its goal-policy slack: a goal at rest lying in a segment is
     # reached by that segment's slow forward template (runs creep onto it), not by the
@@ -585,6 +591,7 @@ def test_goal_policies_reach_a_goal_at_rest_on_its_own_segment_only():
     assert reached(k + 1, strict)  # eq 35 alone allows it
 
 
+@pytest.mark.slow
 def test_situating_a_bhop_plan_after_a_slip_plan_uses_the_bhop_regions():
     # Situating caches each template set's boxes of Gf and the domain (once per process).
     # The SLIP templates have eq 33's rows but other regions (eqs 35-36): a BHop plan built

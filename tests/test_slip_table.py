@@ -34,6 +34,7 @@ def table():
     return slip_table(progress=False)
 
 
+@pytest.mark.slow
 def test_table_entries_scale_to_a_full_size_hopper(table):
     """Grid entries against the twin's stride of an 80 kg, 1 m hopper (g = 9.81) with the
     same dimensionless inputs: Froude scaling makes them equal up to the integration."""
@@ -121,6 +122,7 @@ def test_staged_solve_equals_twin(table):
         np.testing.assert_allclose(nxt, goal[i], atol=1e-3)
 
 
+@pytest.mark.slow
 def test_starts_avoid_touchdowns_off_the_foothold(table):
     """With a terrain, a touchdown angle whose foot lands on another block is no start."""
     from jaxhop._core.terrain import make_terrain
@@ -134,6 +136,7 @@ def test_starts_avoid_touchdowns_off_the_foothold(table):
     assert np.all(t_fall + np.sin(np.asarray(starts[:, 0])) < 0.3 + 1e-9)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("apex, goal", [
     ([0.652257, 1.28109479, 0.99839622], [0.61809854, 1.53402949, -0.59375]),
     ([0.4, 1.3, 0.5], [0.37872505, 1.54988505, -0.09375]),
@@ -157,6 +160,7 @@ def test_polish_reaches_the_box_minimum_on_the_stiffness_bound(table, apex, goal
     assert float(c) <= c2.min()
 
 
+@pytest.mark.slow
 def test_no_table_start_still_reaches_the_goal(table):
     """An apex from which no touchdown angle of the table lands on the foothold's block:
     without the fallback, the solve's controls (the flat-ground starts' longer polish)
@@ -179,6 +183,7 @@ def test_no_table_start_still_reaches_the_goal(table):
     np.testing.assert_allclose(nxt, goal, atol=1e-3)
 
 
+@pytest.mark.slow
 def test_predicted_stride_is_the_stride_of_the_controls(table):
     """`deadbeat_slip(predict=True)` returns the stride its controls give without running
     it where no control was clipped: it must equal `slip_stride` with those controls on the
