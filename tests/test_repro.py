@@ -38,6 +38,9 @@ sys.exit(rc)
 """
 
 
+# `tests/test_devices.py` checks the same runs on one device and on four, run by run, in CI;
+# this end-to-end check of the command's JSON on four devices runs with the heavy tests.
+@pytest.mark.heavy
 @pytest.mark.slow
 def test_four_forced_devices_same_json(tmp_path):
     one = tmp_path / "one.json"
