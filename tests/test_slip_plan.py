@@ -298,16 +298,15 @@ def _decide(apex, tables, hopper):
 
 @functools.cache
 def _premise_programs():
-    """The table-start deadbeat of a decision and the stride at `SEARCH_TOL`, jitted once for
-    every test here that checks a premise with them (eager, each call traces its solver
-    loops again)."""
+    """The table-start deadbeat of a decision and the stride (its `Tolerances`, all static,
+    select the compiled program), jitted once for every test here that checks a premise
+    with them (eager, each call traces its solver loops again)."""
     from jaxhop._models.slip.deadbeat import DeadbeatSearch, deadbeat_slip
-    from jaxhop._models.slip.kernels import SEARCH_TOL
     from jaxhop._models.slip.stride import slip_stride
 
     deadbeat = jax.jit(lambda a, g, h, table, terrain, w: deadbeat_slip(
         a, g, h, HOPPER, DeadbeatSearch(table=table, fallback=False), terrain=terrain, wind=w))
-    stride = jax.jit(lambda a, u, terrain, w: slip_stride(a, u, terrain, HOPPER, w, SEARCH_TOL))
+    stride = jax.jit(lambda a, u, terrain, w, tol: slip_stride(a, u, terrain, HOPPER, w, tol))
     return deadbeat, stride
 
 
@@ -371,6 +370,7 @@ def test_a_slip_miss_that_stays_put_is_decided_again():
 
     from jaxhop._control.decisions import SLIP_ACCEPT, first_match
     from jaxhop._execution.batches import run_batch
+    from jaxhop._models.slip.kernels import SEARCH_TOL
 
     adjust = dataclasses.replace(templates_for("slip").slip, keep_direction=False)
     plan, true = _perceived_plan(paper_templates().for_slip(adjust))
@@ -385,7 +385,7 @@ def test_a_slip_miss_that_stays_put_is_decided_again():
     h = tables.table.centre[sit // tables.templates.n, 1]
     deadbeat, stride = _premise_programs()
     u, _ = deadbeat(apex, goal, h, tables.slip, tables.terrain, 0.0)
-    pred, code, _ = stride(apex, u, tables.terrain, 0.0)
+    pred, code, _ = stride(apex, u, tables.terrain, 0.0, SEARCH_TOL)
     scale = np.asarray(SLIP_ACCEPT)
     miss = float(np.max(np.abs(pred - goal) / scale))
     assert code == 0 and abs(float(pred[0] - apex[0])) < 0.05 and miss > 1
@@ -421,6 +421,7 @@ def test_a_slip_run_in_a_headwind_captures_the_goal_at_rest(reference_slip_plan)
     from jaxhop._control.decisions import capture_target
     from jaxhop._core.params import disturbance_for
     from jaxhop._execution.batches import run_batch
+    from jaxhop._models.slip.stride import STRIDE_TOL
 
     plan = reference_slip_plan
     tables = plan.tables(slip=True)
@@ -429,13 +430,13 @@ def test_a_slip_run_in_a_headwind_captures_the_goal_at_rest(reference_slip_plan)
     # The premise, from the deadbeat and the stride themselves: one stride misses.
     deadbeat, stride = _premise_programs()
     u, _ = deadbeat(apex, goal, 0.0, tables.slip, tables.terrain, windy.wind)
-    pred, code, _ = stride(apex, u, tables.terrain, windy.wind)
+    pred, code, _ = stride(apex, u, tables.terrain, windy.wind, STRIDE_TOL)
     assert code == 0 and float(np.max(np.abs(np.asarray(pred - goal)))) > 0.05
     # The capture stride's target: from there the same deadbeat and stride stop at the goal.
     near, target = capture_target(apex, goal, jnp.full(3, 0.05), 0.0, HOPPER)
     assert near and 0.0 < float(target[2]) < 0.3 and apex[0] < target[0] < goal[0]
     u, _ = deadbeat(target, goal, 0.0, tables.slip, tables.terrain, windy.wind)
-    stop, code, _ = stride(target, u, tables.terrain, windy.wind)
+    stop, code, _ = stride(target, u, tables.terrain, windy.wind, STRIDE_TOL)
     assert code == 0 and float(np.max(np.abs(np.asarray(stop - goal)))) <= 0.01, stop
     starts = np.array([[9.44, 1.30, 0.03], [9.45, 1.30, 0.0], [9.2, 1.45, 0.5]])
     out = run_batch(plan, starts, jaxhop.RunSettings(model="slip", controller="adaptive"),
@@ -530,6 +531,7 @@ def test_a_slip_decision_for_a_small_leg_is_the_reference_decision_in_froude_uni
     # 26 % of its leg length, which the reference hopper rejects (5 %).
     from jaxhop._control.decisions import in_global_domain
     from jaxhop._execution.batches import sweep_grid
+    from jaxhop._models.slip.kernels import SEARCH_TOL
     from jaxhop.parkour import leg_hopper
 
     leg = leg_hopper()
@@ -548,7 +550,7 @@ def test_a_slip_decision_for_a_small_leg_is_the_reference_decision_in_froude_uni
         f0, u0, a0, r0 = _decide(jnp.asarray(z), tables, HOPPER)
         f1, u1, a1, r1 = _decide(jnp.asarray(z * to_leg), small, leg)
         assert (bool(f0), int(a0), bool(r0)) == (bool(f1), int(a1), bool(r1)), z
-        pred, _, _ = stride(jnp.asarray(z), u0, tables.terrain, 0.0)
+        pred, _, _ = stride(jnp.asarray(z), u0, tables.terrain, 0.0, SEARCH_TOL)
         if np.max(np.abs(np.asarray(pred) - np.asarray(tables.goals[a0]))) < 1e-4:
             reached += 1
             np.testing.assert_allclose(u1[0], u0[0], atol=1e-5)
