@@ -135,7 +135,7 @@ ax.set(xlabel="y (m)", ylabel="z (m)")'''),
 
 `benchmarks/parkour_compare.py` runs every course, 12 seeded runs per cell; its results
 are stored in `benchmarks/results/` (the device and load are named in each file, timings
-in `benchmarks/README.md`). Reactive BHop with the adaptive controller and with the
+in `benchmarks/parkour.md`). Reactive BHop with the adaptive controller and with the
 paper's, reactive SLIP on the leg's SLIP templates (adaptive), and MPPC with its
 observer; the success rate per course and disturbance:"""),
     ("code", '''import json
@@ -172,7 +172,7 @@ axes[0].set_ylabel("success")
 fig.legend(loc="upper center", ncol=len(planners), fontsize=8)
 fig.tight_layout(rect=(0, 0, 1, 0.9))'''),
     ("md", """A dash: a cell not measured on every course. Reading the table and the causes
-of each failure: `benchmarks/README.md` and `docs/parkour_reactive.md`."""),
+of each failure: `benchmarks/parkour.md` and `docs/parkour_reactive.md`."""),
 ]
 
 

@@ -64,3 +64,32 @@ def test_a_sweep_grid_picks_evenly_spaced_states_of_the_domain():
     four = jaxhop.sweep_initial(plan, jaxhop.SweepGrid(dy=0.2, dz=0.2, runs=4))
     np.testing.assert_array_equal(four[[0, -1]], every[[0, -1]])
     assert four.shape == (4, 3)
+
+
+def _tables_module():
+    import importlib.util
+
+    path = README.parent / "benchmarks" / "tables.py"
+    spec = importlib.util.spec_from_file_location("benchmark_tables", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.mark.parametrize("page", ["README.md", "benchmarks/README.md"])
+def test_landing_pages_are_at_most_150_lines_without_history(page):
+    text = (README.parent / page).read_text()
+    assert len(text.splitlines()) <= 150
+    for word in ("session", "issue ", "earlier build", "before the "):
+        assert word not in text.lower(), word
+
+
+def test_benchmark_tables_are_generated_from_the_results_files():
+    # Every number in the tables comes from its results file: the pages hold exactly what
+    # `benchmarks/tables.py` renders from `benchmarks/results/`, and nothing written by hand
+    # between the markers.
+    tables = _tables_module()
+    for path, sections in tables.PAGES.items():
+        doc = path.read_text()
+        inside = doc.split(tables.START)[1].split(tables.END)[0]
+        assert inside == "\n" + tables.render(sections), path.name
