@@ -8,6 +8,9 @@ times (after one untimed run of each, so that nothing includes compilation), all
 process, and the medians are compared.
 
     python benchmarks/parkour_update_one.py --course mppc-hw-dynamic-4 --snapshot 2
+    python benchmarks/parkour_update_one.py --course mppc-hw-dynamic-4 --snapshot 2 --model slip
+
+`--model slip` uses the leg's SLIP templates (`leg_templates(h, model="slip")`).
 """
 
 from __future__ import annotations
@@ -38,13 +41,15 @@ def main(argv=None) -> int:
     ap.add_argument("--rebuilds", type=int, default=3)
     ap.add_argument("--centred", dest="align", action="store_false",
                     help="every block's segments centred")
+    ap.add_argument("--model", choices=["bhop", "slip"], default="bhop",
+                    help="the leg's BHop or SLIP templates")
     ap.add_argument("--json", metavar="PATH")
     args = ap.parse_args(argv)
     course = load_course(args.course)
     if not 1 <= args.snapshot <= len(course.snapshots):
         ap.error(f"--snapshot: {args.course} has {len(course.snapshots)} snapshots")
     hop = leg_hopper()
-    tm = leg_templates(hop)
+    tm = leg_templates(hop, model=args.model)
     envs = [course.environment] + [e for _, e in course.snapshots]
     maps = [course_map(course, e, hop, align=args.align) for e in envs[: args.snapshot + 1]]
     prev = build_course_plan(maps[0], tm, hop, grid=COURSE_GRID)
@@ -65,10 +70,12 @@ def main(argv=None) -> int:
     rw, rc = np.median([r[1] for r in rb]), np.median([r[2] for r in rb])
     same = all(identical_plans(u[0], rb[0][0]) for u in up)
     out = {"course": args.course, "snapshot": args.snapshot, "align": args.align,
+           "model": args.model,
            "update_s": [u[1] for u in up], "update_cpu_s": [u[2] for u in up],
            "rebuild_s": [r[1] for r in rb], "rebuild_cpu_s": [r[2] for r in rb],
            "ratio": rw / uw, "ratio_cpu": rc / uc, "identical": same}
-    print(f"{args.course} snapshot {args.snapshot}: update median {uw:.2f} s (cpu {uc:.2f}), "
+    print(f"{args.course} snapshot {args.snapshot} ({args.model}): update median {uw:.2f} s "
+          f"(cpu {uc:.2f}), "
           f"rebuild median {rw:.1f} s (cpu {rc:.1f}), ratio {rw / uw:.2f} "
           f"(cpu {rc / uc:.2f}), identical {same}")
     if args.json:

@@ -260,11 +260,16 @@ TALL = {
 }
 
 
-def _tall_maps(align=False):
-    course = course_from_dict(TALL)
+def _course_maps(spec, align=True):
+    course = course_from_dict(spec)
     hop = leg_hopper()
     envs = [course.environment] + [e for _, e in course.snapshots]
-    return [course_map(course, e, hop, align=align) for e in envs], hop, leg_templates(hop)
+    return [course_map(course, e, hop, align=align) for e in envs], hop
+
+
+def _tall_maps(align=False, model="bhop"):
+    maps, hop = _course_maps(TALL, align)
+    return maps, hop, leg_templates(hop, model=model)
 
 
 def test_course_map_segments_stay_put_when_an_obstacle_moves():
@@ -349,17 +354,18 @@ def test_lattice_segments_leave_no_gap_inside_the_floor(name):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("align", [False, True])
-def test_update_dependency_tests_are_sufficient(align):
+@pytest.mark.parametrize("align,model", [(False, "bhop"), (True, "bhop"), (True, "slip")])
+def test_update_dependency_tests_are_sufficient(align, model):
     # The tests that let an update keep old results, checked directly on the tall
     # obstacle's 2 mm move: a pair between kept policies whose collision clauses no
     # changed block can bind has the same `pair_goal` on both maps, and an apex whose
-    # descent meets no changed block has the same `candidate_situated` result.
+    # descent meets no changed block has the same `candidate_situated` result. For the
+    # SLIP-adjusted templates the domains carry eq 37's foot lead and `Gf` eq 35's limits.
     from jaxhop._planning import stages as S
     from jaxhop.parkour import _build as B
     from jaxhop.parkour import _reach as PR
 
-    maps, hop, tm = _tall_maps(align)
+    maps, hop, tm = _tall_maps(align, model)
     old, new = (B._Context(m, tm, hop) for m in maps[:2])
     blocks = PR.changed_blocks(maps[0], maps[1])
     assert np.any(blocks[:, 2] > hop.rho0)  # the moved obstacle binds rises from the floor
@@ -436,6 +442,55 @@ def test_update_with_tall_obstacle_equals_full_rebuild(tall_plans):
     last = plans[3].stats
     assert last["changed_blocks"] == [] and last["recomputed_pairs"] == 0
     assert last["recomputed_robustness"] == 0 and last["reused_goal_policies"]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("printed", [False, True], ids=["leg", "printed"])
+def test_shift_bounds_hold_eq35s_limits_at_every_goal_velocity(printed):
+    # The update's rise test needs bounds of eq 35's limits over a template's goal
+    # velocities: they must hold at every velocity (checked at 200 000 random ones) and be
+    # tight (the limits jump at ydot = 0 and, with the printed constants, where `h`
+    # switches constants).
+    import jax.numpy as jnp
+
+    from jaxhop._core.params import Hopper
+    from jaxhop._planning.regions import slip_shift_limits
+    from jaxhop._planning.stages import relative_boxes
+    from jaxhop._planning.templates import SlipAdjust
+    from jaxhop.parkour._reach import shift_bounds
+
+    if printed:
+        hop, tm = Hopper(), paper_templates().for_slip(SlipAdjust.printed())
+    else:
+        hop = leg_hopper()
+        tm = leg_templates(hop, model="slip")
+    gf, _ = relative_boxes(tm, hop)
+    lo, hi = shift_bounds(tm, gf[:, 2])
+    rng = np.random.default_rng(0)
+    for t in range(tm.n):
+        v = rng.uniform(gf[t, 2, 0], gf[t, 2, 1], 200_000)
+        a, b = (np.broadcast_to(np.asarray(x), v.shape)
+                for x in slip_shift_limits(jnp.asarray(v), tm.row(t)))
+        assert lo[t] <= a.min() <= lo[t] + 1e-3
+        assert hi[t] - 1e-3 <= b.max() <= hi[t]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("spec", [SMALL, TALL], ids=["small", "tall"])
+def test_update_of_a_slip_plan_equals_full_rebuild(spec):
+    # The leg's SLIP templates (eqs 35-37: shift limits that vary with the goal velocity, a
+    # foot lead) are updated at each snapshot, bit for bit a full rebuild.
+    maps, hop = _course_maps(spec)
+    tm = leg_templates(hop, model="slip")
+    assert tm.slip is not None
+    plans = [build_course_plan(maps[0], tm, hop, grid=GRID)]
+    for m in maps[1:]:
+        plans.append(build_course_plan(m, tm, hop, grid=GRID, previous=plans[-1]))
+    for inc, m in zip(plans[1:], maps[1:]):
+        full = build_course_plan(m, tm, hop, grid=GRID)
+        assert inc.stats["incremental"]
+        assert inc.stats["recomputed_pairs"] < full.stats["n_candidate_pairs"]
+        assert identical_plans(inc, full)
 
 
 @pytest.mark.slow

@@ -31,10 +31,12 @@ segment (their ids are remapped); those on changed blocks are *new*. Then:
   bind the ascent bounds at the goal's probes (`goal_binds`); deployment is redone.
 
 docs/parkour_reactive.md derives each test. A change of the map's ends, of its lowest
-height (which the hole test uses) or of the goal, or SLIP-adjusted templates, fall back to
-a full build. Instantiated policies are kept in a canonical order (goal policies by
-situated id, then pairs by `(situated, target)`), so an update and a full build of the
-same map feed `deploy` the same arrays.
+height (which the hole test uses) or of the goal falls back to a full build. SLIP-adjusted
+templates (eqs 35-37) update the same way: their foot lead moves a domain and its
+collision bounds together, and the dependency tests bound the shift limits and the lead
+(`shift_bounds`, `foot_lead_time`). Instantiated policies are kept in a canonical order
+(goal policies by situated id, then pairs by `(situated, target)`), so an update and a
+full build of the same map feed `deploy` the same arrays.
 """
 
 from __future__ import annotations
@@ -56,8 +58,10 @@ from ._map import CourseMap
 from ._reach import (
     Reach,
     Update,
+    foot_lead_time,
     goal_binds,
     rounded_segments,
+    shift_bounds,
 )
 
 _GRID = PairGrid()
@@ -124,8 +128,9 @@ class _Context(S.Layout, Reach):
         centre = np.asarray(self.segs.centre)
         self.py, self.h = centre[self.s_of, 0], centre[self.s_of, 1]
         self.l = 0.5 * templates.seg_length
-        arr = templates.as_array()
-        self.dy_lo, self.dy_hi = arr[self.t_of, 4], arr[self.t_of, 5]
+        dy_lo, dy_hi = shift_bounds(templates, self.gf_rel[:, 2])
+        self.dy_lo, self.dy_hi = dy_lo[self.t_of], dy_hi[self.t_of]
+        self.lead_time = foot_lead_time(templates)
         starts, ends = np.asarray(terrain.starts), np.asarray(terrain.ends)
         self.contiguous = bool(np.all(starts[1:] == ends[:-1]))
         self.floor = self.h_min if self.contiguous else self.h_min - hopper.rho0

@@ -16,6 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._core.terrain import Terrain, segments
+from .._planning.regions import slip_shift_limits
 from ._map import CourseMap
 
 _PAD = 1e-6
@@ -34,12 +35,53 @@ def rounded_segments(terrain: Terrain, seg_length: float):
     return dataclasses.replace(segs, centre=jnp.round(segs.centre, 12))
 
 
+def shift_bounds(templates, v_box):
+    """`(dy_lo, dy_hi)` per template: bounds of the horizontal-shift interval of `Gf`
+    (`slip_shift_limits`) over the template's goal velocities `v_box[t] = (v0, v1)`.
+
+    BHop: the template's own `[dy_lo, dy_hi]`. SLIP-adjusted templates (eq 35): the limits
+    vary with the goal velocity `ydot`. Each is monotone (nondecreasing) in `ydot` between
+    breakpoints: `ydot = 0`, where the reversal and direction rules switch on or off, and
+    the velocities where `h`'s argument crosses `co` (its constants switch there). So the
+    smallest `dy_lo` and largest `dy_hi` over the box are taken at its ends and on both
+    sides of each breakpoint inside it.
+    """
+    arr = templates.as_array()
+    if templates.slip is None:
+        return arr[:, 4], arr[:, 5]
+    _, speed = templates.slip.scales()
+    co = templates.slip.co
+    lo, hi = np.empty(templates.n), np.empty(templates.n)
+    for t in range(templates.n):
+        v0, v1 = float(v_box[t, 0]), float(v_box[t, 1])
+        # `h(0.5 (v_hi + ydot))` and `h(-0.5 (v_lo + ydot))` switch constants at `u = co`.
+        breaks = np.array([0.0, 2.0 * co * speed - arr[t, 1], -2.0 * co * speed - arr[t, 0]])
+        eps = 1e-12 * max(1.0, abs(v0), abs(v1))
+        v = np.concatenate([[v0, v1], breaks - eps, breaks, breaks + eps])
+        v = v[(v >= v0) & (v <= v1)]
+        a, b = (np.broadcast_to(np.asarray(x, float), v.shape)
+                for x in slip_shift_limits(jnp.asarray(v), templates.row(t)))
+        lo[t], hi[t] = a.min(), b.max()
+    return lo, hi
+
+
+def foot_lead_time(templates) -> float:
+    """`k >= 0` with `foot_lead(ydot) = k ydot` (eq 37 is linear in `ydot`; 0 for BHop): the
+    foot of a SLIP-adjusted template lands where a BHop foot `k` seconds later in its fall
+    would be, so `touched` shifts its fall times by `k`."""
+    if templates.slip is None:
+        return 0.0
+    length, sin_theta, speed_max = templates.slip.lead_coefficients()
+    return length * sin_theta / speed_max
+
+
 class Reach:
     """The dependency tests of a course layout (mixed into `_build._Context`).
 
     Uses the layout's `hopper`, `py`, `h` (segment centre), `l` (half a segment), `dy_lo`,
-    `dy_hi` (template foot offsets), `gf_world`, `d_world`, `n_sit` and `floor` (the lowest
-    height a falling foot can reach).
+    `dy_hi` (bounds of the template's shift limits, `shift_bounds`), `lead_time`
+    (`foot_lead_time`), `gf_world`, `d_world`, `n_sit` and `floor` (the lowest height a
+    falling foot can reach).
     """
 
     def ascent_binds(self, idx, z1, v0, v1, blocks):
@@ -115,9 +157,11 @@ class Reach:
         """Whether the descending foot from apexes `goals` (or any probe of the box
         `goals +- half_width`) can meet a block of `blocks` before `touchdown` decides.
 
-        The foot falls from `(y, z - rho0)` with speed `ydot`; it is below a block's top `H`
-        from `t_H = sqrt(2 (z - rho0 - H) / g)` on, and by `t_end` (the fall to the lowest
-        block, or to the hole depth where the map has gaps) `touchdown` has found its event.
+        The foot falls from `(y + k ydot, z - rho0)` with speed `ydot` (`k`: `lead_time`, the
+        foot lead of eq 37 over the speed, 0 for BHop); it is below a block's top `H` from
+        `t_H = sqrt(2 (z - rho0 - H) / g)` on, and by `t_end` (the fall to the lowest block,
+        or to the hole depth where the map has gaps) `touchdown` has found its event: its
+        `y` lies between `y + ydot (t_H + k)` and `y + ydot (t_end + k)`.
         The block can only enter the result if its extent meets the foot's `y` on
         `[t_H, t_end]`. Otherwise the touchdown (block, time, foot position) is decided by
         the other blocks, and `candidate_situated` looks only at the landing block's
@@ -129,10 +173,12 @@ class Reach:
         z_lo, z_hi = goals[:, 1] - hw[1], goals[:, 1] + hw[1]
         v_lo, v_hi = goals[:, 2] - hw[2], goals[:, 2] + hw[2]
         t_end = np.sqrt(2.0 * np.maximum(z_hi - rho0 - self.floor, 0.0) / g)
+        k = self.lead_time
         out = np.zeros(goals.shape[0], bool)
         for s, e, height in blocks:
             t_h = np.minimum(np.sqrt(2.0 * np.maximum(z_lo - rho0 - height, 0.0) / g), t_end)
-            c = np.stack([v_lo * t_h, v_lo * t_end, v_hi * t_h, v_hi * t_end])
+            c = np.stack([v_lo * (t_h + k), v_lo * (t_end + k), v_hi * (t_h + k),
+                          v_hi * (t_end + k)])
             out |= (y_lo + c.min(0) <= e + _PAD) & (y_hi + c.max(0) >= s - _PAD)
         return out
 
@@ -260,7 +306,7 @@ class Update:
     @classmethod
     def of(cls, previous, ctx, goal) -> Update | None:
         """The update from `previous`, or None for a full build (no previous plan, or
-        other ends, lowest height, goal or template count, or SLIP-adjusted templates)."""
+        other ends, lowest height, goal or template count)."""
         if previous is None:
             return None
         old_terrain, terrain = previous.plan.terrain, ctx.terrain
@@ -269,7 +315,7 @@ class Update:
                      and old_ends[-1] == np.asarray(terrain.ends)[-1])
         same_min = float(np.min(np.asarray(old_terrain.heights))) == ctx.h_min
         same_goal = np.array_equal(previous.plan.goal, goal)
-        if not (same_ends and same_min and same_goal and ctx.templates.slip is None
+        if not (same_ends and same_min and same_goal
                 and previous.plan.templates.n == ctx.templates.n):
             return None
         changed = changed_blocks(previous.cmap, ctx.cmap)
