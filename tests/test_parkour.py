@@ -587,3 +587,15 @@ def test_parkour_cli_reactive(tmp_path):
     assert sum(res["failures"].values()) == 4 - n_ok
     assert res["jumps"] == len(res["executed"]) > 0
     assert set(res["executed"][0]) == {"xs", "zs", "v", "theta", "t", "x1", "z1"}
+    # Each snapshot's update against the flight it started in: run 0's flight of the
+    # stride before the snapshot (its `executed` entry) bounds the shortest over the runs.
+    snaps = res["snapshots"]
+    assert [s["from_jump"] for s in snaps] == [s["from_jump"] for s in SMALL["snapshots"]]
+    for s in snaps:
+        k = s["from_jump"]
+        if res["jumps"] > k:
+            assert s["flight_s"] <= res["executed"][k - 1]["t"] + 1e-12
+        if s["flight_s"] is not None:
+            assert 0 < s["ascent_s"] < s["flight_s"]
+            assert s["within_flight"] == (s["update_s"] <= s["flight_s"])
+            assert s["before_decision"] == (s["update_s"] <= s["ascent_s"])

@@ -20,6 +20,7 @@ from ._run import (
     initial_states,
     pad_plans,
     run_reactive,
+    snapshot_flights,
 )
 
 
@@ -64,6 +65,8 @@ def reactive_parkour(course: Course, runs: CourseRuns | None = None, *,
     `plans` (`course_plans`, built here when not given, with `rebuild`, `align`:
     `course_map`'s option, `False` centres every block's segments, and `log`).
     `recoveries` counts the strides taken from a recovered apex (total and mean per run).
+    `snapshots`: for each snapshot, its update time against the flight in which it started
+    (`snapshot_flights`).
     """
     runs = CourseRuns() if runs is None else runs
     model, noise, seed, controller = runs.model, runs.noise, runs.seed, runs.controller
@@ -125,6 +128,7 @@ def reactive_parkour(course: Course, runs: CourseRuns | None = None, *,
         "rebuild_cpu_ms": _stats(np.asarray(cps.rebuild_cpu_s) * 1e3),
         "rebuild_equal": [bool(x) for x in cps.rebuild_equal],
         "n_snapshots": len(cps.plans) - 1,
+        "snapshots": snapshot_flights(cps, res, hopper),
         "n_policies": [int(cp.stats["n_instantiated"]) for cp in cps.plans],
         "run_s": float(run_s),
         "hopper": {"m": float(hopper.m), "g": float(hopper.g), "rho0": float(hopper.rho0)},

@@ -129,6 +129,15 @@ def run_parkour(args, course) -> int:
     if out["planner"] == "reactive":
         print(f"success rate {out['success_rate']:.3f} over {out['runs']} runs; plan built in "
               f"{out['build_s']:.1f} s; {out['n_snapshots']} snapshot updates")
+        timed = [s for s in out["snapshots"] if s["flight_s"] is not None]
+        if timed:
+            print(f"updates within the flight they started in: "
+                  f"{sum(s['within_flight'] for s in timed)} of {len(timed)}, before the next "
+                  f"decision: {sum(s['before_decision'] for s in timed)} (updates "
+                  f"{min(s['update_s'] for s in timed):.2f}-"
+                  f"{max(s['update_s'] for s in timed):.2f} s, flights "
+                  f"{min(s['flight_s'] for s in timed):.2f}-"
+                  f"{max(s['flight_s'] for s in timed):.2f} s)")
     if getattr(args, "json", None):
         write_json(args.json, out)
     return 0

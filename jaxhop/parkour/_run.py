@@ -366,3 +366,36 @@ def first_descent(result: dict, i: int, hopper: Hopper) -> float:
         return 0.0
     return math.sqrt(max(2.0 * (ap[0][1] - ft[0][1] - float(hopper.rho0)) / float(hopper.g),
                          0.0))
+
+
+def snapshot_flights(cps: CoursePlans, result: dict, hopper: Hopper) -> list[dict]:
+    """For each snapshot, whether its update finished within the flight in which it started.
+
+    A snapshot in force from stride `k` (`from_jump`) is seen when the leg lifts off for
+    stride `k - 1`, the last one on the old plan; its update starts then. That stride's
+    flight lasts `flight_s` (liftoff to the next touchdown), and stride `k` is decided at
+    its apex, `ascent_s` after the liftoff. Both are the shortest over the runs that flew
+    stride `k - 1` (None where none did, or `k = 0`). `within_flight`: the update took at
+    most `flight_s`; `before_decision`: at most `ascent_s`.
+    """
+    g, rho0 = float(hopper.g), float(hopper.rho0)
+    apexes, feet, steps = result["apexes"], result["footholds"], result["steps"]
+    out = []
+    for k, update in zip(cps.starts[1:], cps.update_s):
+        row = {"from_jump": int(k), "update_s": float(update), "flight_s": None,
+               "ascent_s": None, "within_flight": None, "before_decision": None}
+        out.append(row)
+        flew = np.nonzero(steps >= k)[0] if 1 <= k < feet.shape[1] else []
+        if not len(flew):
+            continue
+        # Liftoff from foothold k - 1 up to apex k, then down to foothold k (a run that
+        # ended at apex k: down to the ground it lifted off from).
+        z, h0, h1 = apexes[flew, k, 1], feet[flew, k - 1, 1], feet[flew, k, 1]
+        h1 = np.where(np.isfinite(h1), h1, h0)
+        up = np.sqrt(np.maximum(2.0 * (z - h0 - rho0) / g, 0.0))
+        down = np.sqrt(np.maximum(2.0 * (z - h1 - rho0) / g, 0.0))
+        row["flight_s"], row["ascent_s"] = float(np.min(up + down)), float(np.min(up))
+        row["within_flight"] = bool(update <= row["flight_s"])
+        row["before_decision"] = bool(update <= row["ascent_s"])
+    return out
+
