@@ -60,3 +60,60 @@ def test_rise_into_overhanging_block_is_a_collision():
     apex = jnp.array([0.7, 1.3, 0.0])
     nxt, code, _ = bhop_stride(apex, jnp.array([0.2, -0.6, 1.0]), t, HOP)
     assert int(code) == COLLISION
+
+
+def _course_terrain_and_apexes(n=20_000, seed=0):
+    # A course map (70 blocks padded to 96, holes-free but with many narrow obstacles and
+    # margin bands) and apexes over it: random ones, and ones whose foot or COM starts
+    # exactly on a block edge.
+    import numpy as np
+
+    from jaxhop._core.batching import pad_terrain
+    from jaxhop.mppc import load_course
+    from jaxhop.parkour import course_map, leg_hopper
+
+    hop = leg_hopper()
+    course = load_course("mppc-hw-dynamic-4")
+    terrain = pad_terrain(course_map(course, course.environment, hop).plan, 96)
+    rng = np.random.default_rng(seed)
+    starts, ends = np.asarray(terrain.starts), np.asarray(terrain.ends)
+    h = np.asarray(terrain.heights)
+    y = rng.uniform(starts[0] - 0.1, ends[-1] + 0.1, n)
+    y[: n // 4] = rng.choice(np.concatenate([starts, ends]), n // 4)
+    apex = np.stack([y, rng.uniform(h.min() + 0.01, h.max() + 0.6, n),
+                     rng.uniform(-1.5, 1.5, n)], 1)
+    return terrain, apex, hop
+
+
+@pytest.mark.parametrize("model", ["bhop", "slip"])
+def test_touchdown_in_a_window_of_blocks_is_the_whole_terrains(model):
+    # The planner's touchdowns look only at the blocks around the descent
+    # (`landing_window`): the same code, block, time, foot position and velocity, bit for
+    # bit, as over every block, with the foot straight below the COM (BHop templates) or
+    # eq 37's lead ahead of it (SLIP-adjusted).
+    import jax
+    import numpy as np
+
+    from jaxhop._planning.policies import landing_window
+    from jaxhop._planning.regions import foot_lead
+    from jaxhop.parkour import leg_templates
+
+    terrain, apex, hop = _course_terrain_and_apexes()
+    tm = leg_templates(hop, model=model)
+    width = landing_window(apex, tm, terrain, hop)
+    assert width is not None and width <= terrain.n_blocks // 2
+
+    def run(window):
+        def one(a):
+            offset = jnp.stack([foot_lead(a[2], tm), -hop.rho0])
+            return touchdown(a, offset, terrain, hop, window=window)
+
+        return [np.asarray(x) for x in jax.jit(jax.vmap(one))(jnp.asarray(apex))]
+
+    full, win = run(None), run(width)
+    assert {OK, COLLISION, OFF_MAP} <= set(full[0].tolist())
+    for a, b in zip(full, win):
+        assert np.array_equal(a, b)
+    # A window too narrow for the widest descents changes some outcomes: the test sees it.
+    narrow = run(2)
+    assert not all(np.array_equal(a, b) for a, b in zip(full, narrow))

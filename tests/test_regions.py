@@ -184,3 +184,37 @@ def test_bounds_on_a_grid_equal_the_bounds_of_each_cell():
     for block in range(flat_ish.n_blocks):
         lo, hi = ascent_y_bounds(V, Z + 0.5, block, flat_ish, HOP)
         assert np.all(np.asarray(lo) == -np.inf) and np.all(np.asarray(hi) == np.inf)
+
+
+@pytest.mark.parametrize("where", ["well", "course"])
+def test_rise_bounds_over_the_listed_blocks_equal_the_whole_terrains(where):
+    # `ascent_sides` lists, for each take-off block, the blocks standing more than `rho0`
+    # above it; the rise's bound over those alone is the whole terrain's, bit for bit.
+    from jaxhop._core.batching import pad_terrain
+    from jaxhop._planning.policies import ascent_sides
+    from jaxhop.mppc import load_course
+    from jaxhop.parkour import course_map, leg_hopper
+
+    if where == "well":
+        hop = HOP
+        terrain = make_terrain([(0.0, 1.0, 1.1), (1.0, 2.0, 0.0), (2.0, 2.5, 0.4),
+                                (2.5, 3.0, 1.1)])
+        zs = jnp.linspace(1.05, 2.6, 6)
+    else:
+        hop = leg_hopper()
+        course = load_course("mppc-hw-two-rounds")
+        terrain = pad_terrain(course_map(course, course.environment, hop).plan, 128)
+        zs = jnp.linspace(0.2, 0.9, 6)
+    V, Z = jnp.meshgrid(jnp.linspace(-1.5, 1.5, 7), zs, indexing="ij")
+    sides = ascent_sides(terrain, hop)
+    own = np.arange(terrain.n_blocks)[:, None, None]
+    assert (sides != own).any()  # some block stands high enough to bind a rise
+    assert sides.shape[2] < terrain.n_blocks or where == "well"
+    bound = False
+    for block in range(terrain.n_blocks):
+        full = np.asarray(ascent_y_bounds(V, Z, block, terrain, hop))
+        pruned = np.asarray(ascent_y_bounds(V, Z, block, terrain, hop, sides=sides[block]))
+        np.testing.assert_array_equal(full, pruned)
+        bound |= bool(np.isfinite(full).any())
+    assert bound
+

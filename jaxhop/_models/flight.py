@@ -5,6 +5,7 @@ start of each ballistic arc. A point follows `p(t) = p0 + v t + a t^2 / 2` horiz
 (`a`: wind) and `z(t) = z0 + zdot0 t - g t^2 / 2` vertically.
 """
 
+import jax
 import jax.numpy as jnp
 
 from .._core.params import Hopper
@@ -25,6 +26,8 @@ SOLVER = Result.SOLVER
 RUNNING = Result.RUNNING
 
 _INF = jnp.inf
+#: Slack (m) around the paths in `touchdown`'s window.
+REACH_PAD = 1e-9
 
 
 def flight_crossings(p0, v, a, w):
@@ -75,7 +78,32 @@ def _inside(y, z, terrain: Terrain):
     return jnp.any((y > terrain.starts) & (y < terrain.ends) & (z < terrain.heights))
 
 
-def touchdown(apex, foot_offset, terrain: Terrain, hopper: Hopper, wind=0.0):
+def reach_interval(y, fy, ydot, wind, t_end):
+    """`(lo, hi)`: the horizontal extent of the COM's (from `y`) and the foot's (from `fy`)
+    paths over the times `[0, t_end]` (`t_end`: the fall to the hole depth)."""
+    t_vertex = jnp.clip(jnp.where(wind != 0, -ydot / jnp.where(wind != 0, wind, 1.0), 0.0),
+                        0.0, t_end)
+    drift = jnp.stack([0.0 * ydot, flight_position(0.0, ydot, wind, t_end),
+                       flight_position(0.0, ydot, wind, t_vertex)])
+    return (jnp.minimum(y, fy) + jnp.min(drift), jnp.maximum(y, fy) + jnp.max(drift))
+
+
+def blocks_in_reach(lo, hi, terrain: Terrain, width: int):
+    """The `width` consecutive blocks from the first one that ends at or after `lo` (moved
+    back where fewer than `width` remain), as a terrain, and the index of its first block.
+
+    Blocks are sorted and do not overlap, so every block that meets `[lo, hi]` lies in it
+    when at most `width` do."""
+    n = terrain.n_blocks
+    first = jnp.clip(jnp.searchsorted(terrain.ends, lo, side="left"), 0, n - width)
+
+    def cut(a):
+        return jax.lax.dynamic_slice(a, (first,), (width,))
+
+    return Terrain(cut(terrain.starts), cut(terrain.ends), cut(terrain.heights)), first
+
+
+def touchdown(apex, foot_offset, terrain: Terrain, hopper: Hopper, wind=0.0, window=None):
     """First contact of the descending foot with the terrain.
 
     The foot rides at `COM + foot_offset` from apex (BHop: `(0, -rho0)`). Touchdown is the
@@ -84,6 +112,12 @@ def touchdown(apex, foot_offset, terrain: Terrain, hopper: Hopper, wind=0.0):
     below the lowest block top is in a `HOLE`, a foot outside the terrain's y range is
     `OFF_MAP`.
 
+    `window` (static): test only that many consecutive blocks, those around the paths of
+    the foot and the COM until the foot falls to the hole depth (`reach_interval`,
+    `blocks_in_reach`). Every block that can decide the outcome lies on those paths, so the
+    result is the same, bit for bit, whenever at most `window` blocks meet them
+    (`jaxhop._planning.policies.landing_window` sizes it).
+
     Returns:
         `(code, block, t, y_foot, v_td)`: `code` is `OK` on touchdown on block `block` at time
         `t` with the foot at `y_foot` and COM velocity `v_td`.
@@ -91,12 +125,20 @@ def touchdown(apex, foot_offset, terrain: Terrain, hopper: Hopper, wind=0.0):
     y, z, ydot = apex
     g = hopper.g
     fy, fz = y + foot_offset[0], z + foot_offset[1]
+    y_min, y_max = terrain.starts[0], terrain.ends[-1]
+    t_hole = _time_at_height(fz, 0.0, g, jnp.min(terrain.heights) - hopper.rho0)
+    if window is not None:
+        lo, hi = reach_interval(y, fy, ydot, wind, t_hole)
+        terrain, offset = blocks_in_reach(lo - REACH_PAD, hi + REACH_PAD, terrain, window)
     t_top = _time_at_height(fz, 0.0, g, terrain.heights)
     y_at_top = flight_position(fy, ydot, wind, jnp.where(jnp.isfinite(t_top), t_top, 0.0))
     on_top = jnp.isfinite(t_top) & (y_at_top >= terrain.starts) & (y_at_top <= terrain.ends)
     t_top = jnp.where(on_top, t_top, _INF)
     block = jnp.argmin(t_top)
     t_td = t_top[block]
+    if window is not None:
+        # The whole terrain's `argmin`: the first block of the earliest top, 0 if none.
+        block = jnp.where(jnp.isfinite(t_td), offset + block, 0)
 
     t_wall = jnp.minimum(jnp.min(_wall_hits(fy, ydot, wind, fz, 0.0, g, terrain)),
                          jnp.min(_wall_hits(y, ydot, wind, z, 0.0, g, terrain)))
@@ -107,11 +149,9 @@ def touchdown(apex, foot_offset, terrain: Terrain, hopper: Hopper, wind=0.0):
     inside = _inside(fy, fz, terrain) | _inside(y, z, terrain)
     t_collide = jnp.where(inside, 0.0, jnp.minimum(t_wall, t_com))
 
-    y_min, y_max = terrain.starts[0], terrain.ends[-1]
     t_off = jnp.minimum(jnp.min(jnp.stack(flight_crossings(fy, ydot, wind, y_min))),
                         jnp.min(jnp.stack(flight_crossings(fy, ydot, wind, y_max))))
     t_off = jnp.where((fy < y_min) | (fy > y_max), 0.0, t_off)
-    t_hole = _time_at_height(fz, 0.0, g, jnp.min(terrain.heights) - hopper.rho0)
 
     times = jnp.stack([t_td, t_collide, t_hole, t_off])
     codes = jnp.array([OK, COLLISION, HOLE, OFF_MAP])

@@ -83,13 +83,14 @@ def situated_table(terrain: Terrain, segs: Segments, seg_length: float) -> Situa
 
 
 def candidate_situated(apex, table: SituatedTable, templates: Templates, terrain: Terrain,
-                       hopper: Hopper):
+                       hopper: Hopper, window=None):
     """Situated policies whose (collision-free) domain contains `apex`.
 
     The nominal descent of the foot (straight below the COM; for SLIP-adjusted templates
     `Y` of eq 37 ahead of it) on `terrain` gives the first touchdown. A situated policy's
     domain contains the apex iff that touchdown is on its segment and the template's
-    velocity and energy ranges hold relative to its height.
+    velocity and energy ranges hold relative to its height. `window` (static): `touchdown`
+    tests only that many blocks around the descent (`landing_window`), the same result.
 
     Returns:
         `(ids, mask)`: `(3 * n_templates,)` situated ids near the touchdown and which of them
@@ -97,7 +98,7 @@ def candidate_situated(apex, table: SituatedTable, templates: Templates, terrain
     """
     lead = foot_lead(apex[2], templates)
     code, block, _, y_foot, _ = touchdown(apex, jnp.stack([lead, -hopper.rho0]), terrain,
-                                          hopper)
+                                          hopper, window=window)
     seg_len = templates.segment
     k = jnp.floor((y_foot - table.block_left[block]) / seg_len).astype(jnp.int32)
     n_on = table.block_count[block]
@@ -116,6 +117,36 @@ def candidate_situated(apex, table: SituatedTable, templates: Templates, terrain
     inside = jax.vmap(jax.vmap(contains, (0, None, None)), (None, 0, 0))(
         jnp.arange(nt), py, h)
     return ids, (inside & on_seg[:, None]).reshape(-1)
+
+
+def landing_window(points, templates: Templates, terrain: Terrain, hopper: Hopper,
+                   step: int = 8):
+    """The `window` of `candidate_situated` for apexes `points` `(n, 3)`: how many blocks
+    the widest of their nominal descents can meet (`touchdown`'s paths of the foot and the
+    COM until the foot falls to the hole depth), rounded up to a multiple of `step` so that
+    similar batches share a program; None (every block) where that is most of them, or a
+    descent starts below the hole depth.
+
+    Computed on the host with 1e-6 m of slack around each path, more than the device's
+    `REACH_PAD`, so the device's window holds every block that meets its paths.
+    """
+    pts = np.asarray(points, float).reshape(-1, 3)
+    n = terrain.n_blocks
+    if pts.shape[0] == 0:
+        return None
+    starts, ends = np.asarray(terrain.starts), np.asarray(terrain.ends)
+    g, rho0 = float(hopper.g), float(hopper.rho0)
+    y, z, ydot = pts[:, 0], pts[:, 1], pts[:, 2]
+    fy = y + np.asarray(foot_lead(jnp.asarray(ydot), templates))
+    fall = z - rho0 - (float(np.min(np.asarray(terrain.heights))) - rho0)
+    if np.any(fall < 0) or not np.all(np.isfinite(pts)):
+        return None
+    drift = ydot * np.sqrt(2.0 * fall / g)
+    lo = np.minimum(y, fy) + np.minimum(drift, 0.0) - 1e-6
+    hi = np.maximum(y, fy) + np.maximum(drift, 0.0) + 1e-6
+    count = np.searchsorted(starts, hi, side="right") - np.searchsorted(ends, lo, side="left")
+    width = -(-max(int(count.max()), 1) // step) * step
+    return None if 2 * width > n else width
 
 
 # --- region bounding boxes -------------------------------------------------------------
@@ -188,6 +219,19 @@ def descent_times(z, terrain: Terrain, hopper: Hopper):
     return safe_sqrt(2.0 * (z - hopper.rho0 - heights) / hopper.g)
 
 
+def _side_lists(higher, starts, ends, step: int) -> np.ndarray:
+    """`(n_blocks, 2, K)`: for each block `b`, the blocks `c` with `higher[b, c]` on its left,
+    then those on its right, in block order, each list padded with `b` itself. `K` is a
+    multiple of `step`, so that maps that differ a little share one shape."""
+    sides = np.stack([higher & (ends[None, :] <= starts[:, None]),
+                      higher & (starts[None, :] >= ends[:, None])], 1)  # [b, side, c]
+    k = bucket(int(sides.sum(2).max()), step)
+    out = np.repeat(np.arange(higher.shape[0])[:, None, None], 2, 1).repeat(k, 2)
+    b, side, c = np.nonzero(sides)
+    out[b, side, (np.cumsum(sides, 2) - 1)[b, side, c]] = c  # in block order on each side
+    return out.astype(np.int32)
+
+
 def descent_sides(terrain: Terrain, step: int = 4) -> np.ndarray:
     """`(n_blocks, 2, K)`: for each landing block, the blocks that can bind its descent
     bounds: the higher ones on its left, then those on its right (`descent_y_bounds`), each
@@ -195,14 +239,18 @@ def descent_sides(terrain: Terrain, step: int = 4) -> np.ndarray:
     `step`, so that maps that differ a little share one shape."""
     heights, starts, ends = (np.asarray(x) for x in (terrain.heights, terrain.starts,
                                                      terrain.ends))
-    higher = heights[None, :] > heights[:, None]
-    sides = np.stack([higher & (ends[None, :] <= starts[:, None]),
-                      higher & (starts[None, :] >= ends[:, None])], 1)  # [b, side, c]
-    k = bucket(int(sides.sum(2).max()), step)
-    out = np.repeat(np.arange(heights.size)[:, None, None], 2, 1).repeat(k, 2)
-    b, side, c = np.nonzero(sides)
-    out[b, side, (np.cumsum(sides, 2) - 1)[b, side, c]] = c  # in block order on each side
-    return out.astype(np.int32)
+    return _side_lists(heights[None, :] > heights[:, None], starts, ends, step)
+
+
+def ascent_sides(terrain: Terrain, hopper: Hopper, step: int = 4) -> np.ndarray:
+    """`(n_blocks, 2, K)`: for each take-off block, the blocks that can bind its rise
+    (`ascent_y_bounds`): those standing more than `rho0` above it, on its left, then on its
+    right, padded with the take-off block itself (never that far above itself). The test
+    keeps 1e-9 m of slack, so the lists hold every block the kernel's own test admits."""
+    heights, starts, ends = (np.asarray(x) for x in (terrain.heights, terrain.starts,
+                                                     terrain.ends))
+    rise = heights[None, :] - (heights[:, None] + float(hopper.rho0))
+    return _side_lists(rise > -1e-9, starts, ends, step)
 
 
 def descent_y_bounds(ydot, z, block, terrain: Terrain, hopper: Hopper, lead=0.0, t_h=None,
@@ -245,7 +293,8 @@ def ascent_times(z, block, terrain: Terrain, hopper: Hopper):
     return t_up, t_h
 
 
-def ascent_y_bounds(ydot, z, block, terrain: Terrain, hopper: Hopper, times=None):
+def ascent_y_bounds(ydot, z, block, terrain: Terrain, hopper: Hopper, times=None,
+                    sides=None):
     """Goal apex `y` interval for which the COM, lifting off from `block`, meets no block.
 
     The COM sweeps at `h + rho0` from the touchdown (on `block`) to the liftoff point
@@ -254,19 +303,24 @@ def ascent_y_bounds(ydot, z, block, terrain: Terrain, hopper: Hopper, times=None
     does): `y_lo + max(ydot, 0) t_H < s_b`; mirrored on the left.
 
     `ydot` and `z` may be arrays of one shape; `times`: their `ascent_times`, where the
-    caller has them (they depend on `z` alone).
+    caller has them (they depend on `z` alone); `sides`: the take-off block's row of
+    `ascent_sides`, to test only the blocks that can bind.
     """
     ndim = max(jnp.ndim(ydot), jnp.ndim(z))
     heights, starts, ends = _blocks(terrain, ndim)
     t_up, t_h = ascent_times(z, block, terrain, hopper) if times is None else times
-    higher = heights - (terrain.heights[block] + hopper.rho0) > 0
+    left_of, right_of = (slice(None), slice(None)) if sides is None else (sides[0], sides[1])
     y_lo_shift = ydot * t_up
-    right = higher & (starts >= terrain.ends[block])
-    left = higher & (ends <= terrain.starts[block])
-    hi = jnp.min(jnp.where(right, starts + y_lo_shift - jnp.maximum(ydot, 0) * t_h, jnp.inf),
-                 axis=0)
-    lo = jnp.max(jnp.where(left, ends + y_lo_shift - jnp.minimum(ydot, 0) * t_h, -jnp.inf),
-                 axis=0)
+
+    def higher(of):
+        return heights[of] - (terrain.heights[block] + hopper.rho0) > 0
+
+    right = higher(right_of) & (starts[right_of] >= terrain.ends[block])
+    left = higher(left_of) & (ends[left_of] <= terrain.starts[block])
+    hi = jnp.min(jnp.where(right, starts[right_of] + y_lo_shift
+                           - jnp.maximum(ydot, 0) * t_h[right_of], jnp.inf), axis=0)
+    lo = jnp.max(jnp.where(left, ends[left_of] + y_lo_shift
+                           - jnp.minimum(ydot, 0) * t_h[left_of], -jnp.inf), axis=0)
     return lo, hi
 
 
@@ -393,7 +447,7 @@ def pair_goal(ti, seg_i, tj, seg_j, box, table: SituatedTable, templates: Templa
             without one the rise's collision clause (`ascent_y_bounds`) never binds and is
             skipped, which leaves every result as it is.
         limits: the templates' `pair_limits`, where the caller has them.
-        sides: the terrain's `descent_sides`, where the caller has them.
+        sides: the terrain's `(descent_sides, ascent_sides)`, where the caller has them.
 
     Returns:
         `(found, goal, margin, margin_d)`: whether the intersection is non-empty, the goal
@@ -410,10 +464,11 @@ def pair_goal(ti, seg_i, tj, seg_j, box, table: SituatedTable, templates: Templa
     zs = Z[:1]
     c_lo, c_hi = descent_y_bounds(V, Z, b_j, terrain, hopper, foot_lead(V, tmpl_j),
                                   descent_times(zs, terrain, hopper),
-                                  None if sides is None else sides[b_j])
+                                  None if sides is None else sides[0][b_j])
     if rise:
         a_lo, a_hi = ascent_y_bounds(V, Z, b_i, terrain, hopper,
-                                     ascent_times(zs, b_i, terrain, hopper))
+                                     ascent_times(zs, b_i, terrain, hopper),
+                                     None if sides is None else sides[1][b_i])
     else:
         a_lo, a_hi = -jnp.inf, jnp.inf
     dom_lo, dom_hi = jnp.maximum(c["d_lo"], c_lo), jnp.minimum(c["d_hi"], c_hi)

@@ -24,10 +24,12 @@ from .._core.programs import jit, stored_array
 from .._core.terrain import Terrain
 from .policies import (
     PROBE_CENTRE,
+    ascent_sides,
     candidate_situated,
     descent_sides,
     goal_policy_margin,
     goal_robustness,
+    landing_window,
     pair_goal,
     pair_limits,
     pair_may_intersect,
@@ -65,9 +67,9 @@ def _pairs(ti, si, tj, sj, boxes, table, templates, terrain, hopper, limits, sid
         ti, si, tj, sj, boxes, table, templates, terrain, hopper, grid, rise, limits, sides)
 
 
-def _rows(goals, allowed, table, templates, terrain, hopper):
-    ids, inside = jax.vmap(candidate_situated, (0, None, None, None, None))(
-        goals, table, templates, terrain, hopper)
+def _rows(goals, allowed, table, templates, terrain, hopper, window=None):
+    ids, inside = jax.vmap(candidate_situated, (0, None, None, None, None, None))(
+        goals, table, templates, terrain, hopper, window)
     return ids, inside & allowed[ids]
 
 
@@ -93,10 +95,10 @@ def _robustness(goals, table, templates, terrain, hopper, half_width):
         goals, table, templates, terrain, hopper, half_width)
 
 
-def _held(points, allowed, table, templates, terrain, hopper):
+def _held(points, allowed, table, templates, terrain, hopper, window=None):
     """Whether an allowed situated policy's domain holds each probe point."""
     def held(p):
-        ids, inside = candidate_situated(p, table, templates, terrain, hopper)
+        ids, inside = candidate_situated(p, table, templates, terrain, hopper, window)
         return jnp.any(inside & allowed[ids])
 
     return jax.vmap(held)(points)
@@ -104,11 +106,11 @@ def _held(points, allowed, table, templates, terrain, hopper):
 
 screen_jit = jit(_screen, static_argnames=("grid",))
 pairs_jit = jit(_pairs, static_argnames=("grid", "rise"))
-rows_jit = jit(_rows)
+rows_jit = jit(_rows, static_argnames=("window",))
 rows_robustness_jit = jit(_rows_and_robustness)
 goal_jit = jit(_goal_policies)
 robustness_jit = jit(_robustness)
-held_jit = jit(_held)
+held_jit = jit(_held, static_argnames=("window",))
 limits_jit = jit(pair_limits, static_argnames=("grid",))
 
 
@@ -192,7 +194,7 @@ class Layout:
     """
 
     chunking = "fixed"
-    #: `descent_sides` pads its block lists to a multiple of this.
+    #: `descent_sides` and `ascent_sides` pad their block lists to a multiple of this.
     sides_step = 4
 
     def __init__(self, terrain: Terrain, segs, templates: Templates, hopper: Hopper):
@@ -263,9 +265,11 @@ def instantiate(lay: Layout, args, grid, bar=None):
     if n == 0:
         return np.zeros(0, bool), np.zeros((0, 3)), np.zeros(0), np.zeros(0)
     rise = tall(lay.jterrain, lay.hopper)
+    sides = (descent_sides(lay.jterrain, lay.sides_step),
+             ascent_sides(lay.jterrain, lay.hopper, lay.sides_step))
     return lay.map(partial(pairs_jit, grid=grid, rise=rise), n, PAIR_CHUNK, args,
                    (lay.jtable, lay.templates, lay.jterrain, lay.hopper, lay.limits(grid),
-                    descent_sides(lay.jterrain, lay.sides_step)), bar)
+                    sides), bar)
 
 
 def goal_policies(lay: Layout, goal, idx, chunk: int | None = GOAL_CHUNK):
@@ -287,7 +291,8 @@ def prepares_rows(lay: Layout, goals):
     n = goals.shape[0]
     if n == 0:
         return np.zeros((0, 3 * lay.nt), np.int64), np.zeros((0, 3 * lay.nt), bool)
-    return lay.map(rows_jit, n, ROW_CHUNK, (goals,),
+    window = landing_window(goals, lay.templates, lay.jterrain, lay.hopper)
+    return lay.map(partial(rows_jit, window=window), n, ROW_CHUNK, (goals,),
                    (lay.jallowed, lay.jtable, lay.templates, lay.jterrain, lay.hopper))
 
 
@@ -311,7 +316,8 @@ def robustness(lay: Layout, goals, half_width) -> np.ndarray:
 
 def held(lay: Layout, points) -> np.ndarray:
     """Whether an allowed situated domain holds each probe point."""
-    return lay.map(held_jit, points.shape[0], PROBE_CHUNK, (points,),
+    window = landing_window(points, lay.templates, lay.jterrain, lay.hopper)
+    return lay.map(partial(held_jit, window=window), points.shape[0], PROBE_CHUNK, (points,),
                    (lay.jallowed, lay.jtable, lay.templates, lay.jterrain, lay.hopper))
 
 

@@ -111,7 +111,7 @@ class _Context(S.Layout, Reach):
     """A course map's situated policies, with what the stages and the update tests share."""
 
     chunking = "fit"
-    # Snapshots that add a block or two keep the shape of `descent_sides` (no recompile).
+    # Snapshots that add a block or two keep the shapes of the side lists (no recompile).
     sides_step = 8
 
     def __init__(self, cmap: CourseMap, templates: Templates, hopper: Hopper):
