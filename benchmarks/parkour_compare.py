@@ -106,7 +106,8 @@ def main(argv=None) -> int:
     ap.add_argument("--repeat", type=int, default=3,
                     help="--timing: timed passes over the update chain (median per snapshot)")
     ap.add_argument("--timing", action="store_true",
-                    help="only time incremental updates against full rebuilds (warm)")
+                    help="only time incremental updates against full rebuilds (warm), for the "
+                         "leg's templates of the first of --models")
     args = ap.parse_args(argv)
     if args.timing:
         return timing(args)
@@ -222,8 +223,9 @@ def timing(args) -> int:
     )
 
     hop = leg_hopper()
-    tm = leg_templates(hop)
-    out = {"device": device_name(), "align": args.align, "courses": []}
+    model = args.models.split(",")[0]
+    tm = leg_templates(hop, model=model)
+    out = {"device": device_name(), "align": args.align, "model": model, "courses": []}
     if args.json and os.path.exists(args.json):  # resume: keep the courses measured before
         with open(args.json) as f:
             out["courses"] = json.load(f).get("courses", [])
@@ -232,7 +234,7 @@ def timing(args) -> int:
         course = load_course(name)
         if not course.snapshots or name in done:
             continue
-        cps = _plans(course, hop, tm, 0, args.cache, print, args.align)
+        cps = _plans(course, hop, tm, 0, args.cache, print, args.align, model)
         maps = [course_map(course, env, hop, align=args.align) for _, env in course.snapshots]
         base = cps.plans[0]
         prev = base
