@@ -125,7 +125,7 @@ def landing_window(points, templates: Templates, terrain: Terrain, hopper: Hoppe
     the widest of their nominal descents can meet (`touchdown`'s paths of the foot and the
     COM until the foot falls to the hole depth), rounded up to a multiple of `step` so that
     similar batches share a program; None (every block) where that is most of them, or a
-    descent starts below the hole depth.
+    descent starts at (or within 1e-9 m of) the hole depth or below it.
 
     Computed on the host with 1e-6 m of slack around each path, more than the device's
     `REACH_PAD`, so the device's window holds every block that meets its paths.
@@ -139,7 +139,7 @@ def landing_window(points, templates: Templates, terrain: Terrain, hopper: Hoppe
     y, z, ydot = pts[:, 0], pts[:, 1], pts[:, 2]
     fy = y + np.asarray(foot_lead(jnp.asarray(ydot), templates))
     fall = z - rho0 - (float(np.min(np.asarray(terrain.heights))) - rho0)
-    if np.any(fall < 0) or not np.all(np.isfinite(pts)):
+    if np.any(fall < 1e-9) or not np.all(np.isfinite(pts)):
         return None
     drift = ydot * np.sqrt(2.0 * fall / g)
     lo = np.minimum(y, fy) + np.minimum(drift, 0.0) - 1e-6
