@@ -322,7 +322,9 @@ def updates() -> list[str]:
     n_snap = sum(c["n_snapshots"] for c in data["courses"])
     ten = sum(r >= 10 for r in wall_r)
     return ["### Incremental updates against full rebuilds (`parkour_compare.py --timing`)",
-            f"`results/{name}`: {data['device']}, lattice segments. An update is the median "
+            f"`results/{name}`: {data['device']}, the leg's "
+            f"{ {'bhop': 'BHop', 'slip': 'SLIP'}[data.get('model', 'bhop')]} "
+            "templates, lattice segments. An update is the median "
             "of three passes over the course's update chain, a rebuild one full build, "
             "compilation untimed; the two slowest updates (CPU) of each course rebuilt and "
             "compared bit for bit.", ""] + table(

@@ -69,10 +69,7 @@ def foot_lead_time(templates) -> float:
     """`k >= 0` with `foot_lead(ydot) = k ydot` (eq 37 is linear in `ydot`; 0 for BHop): the
     foot of a SLIP-adjusted template lands where a BHop foot `k` seconds later in its fall
     would be, so `touched` shifts its fall times by `k`."""
-    if templates.slip is None:
-        return 0.0
-    length, sin_theta, speed_max = templates.slip.lead_coefficients()
-    return length * sin_theta / speed_max
+    return 0.0 if templates.slip is None else float(templates.slip.lead(1.0))
 
 
 class Reach:
