@@ -40,14 +40,16 @@ def _run(n_devices):
 
 
 @pytest.mark.slow
-def test_four_devices_equal_one():
-    one, four = _run(1), _run(4)
-    assert one["devices"] == 1 and four["devices"] == 4
+def test_two_devices_equal_one():
+    # Two devices split the runs as any number does (every n-th run, one host thread per
+    # device); each device compiles every program once, so two keep the test short.
+    one, two = _run(1), _run(2)
+    assert one["devices"] == 1 and two["devices"] == 2
     assert len(one["code"]) > 100
-    assert one["code"] == four["code"] and one["steps"] == four["steps"]
-    assert one["last"] == four["last"]
-    # The lane pool gives the same runs, stride for stride, on one device and on four.
+    assert one["code"] == two["code"] and one["steps"] == two["steps"]
+    assert one["last"] == two["last"]
+    # The lane pool gives the same runs, stride for stride, on one device and on two.
     assert len(set(one["steps"])) > 3  # runs of many lengths: lanes are refilled
-    for res in (one, four):
+    for res in (one, two):
         assert res["pool_code"] == one["code"] and res["pool_steps"] == one["steps"]
         assert res["pool_policies"] == one["policies"] and res["pool_feet"] == one["feet"]

@@ -161,8 +161,11 @@ def test_round_room():
     assert Settings().round_room(0.01) == 0.0
 
 
+# Each course compiles the polish for its own blocks and wind; two run in CI, the third with
+# the heavy tests.
 @pytest.mark.slow
-@pytest.mark.parametrize("name", ["mppc-sim-1", "random-3", "mppc-hw-dynamic-2"])
+@pytest.mark.parametrize("name", [pytest.param("mppc-sim-1", marks=pytest.mark.heavy),
+                                  "random-3", "mppc-hw-dynamic-2"])
 def test_polish_never_slower_and_passes_the_checker(name):
     course = random_course(3) if name == "random-3" else load_course(name)
     grid, polished = MPPC(), MPPC(settings=Settings(polish=True))

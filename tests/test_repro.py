@@ -38,7 +38,7 @@ sys.exit(rc)
 """
 
 
-# `tests/test_devices.py` checks the same runs on one device and on four, run by run, in CI;
+# `tests/test_devices.py` checks the same runs on one device and on two, run by run, in CI;
 # this end-to-end check of the command's JSON on four devices runs with the heavy tests.
 @pytest.mark.heavy
 @pytest.mark.slow

@@ -416,8 +416,11 @@ def deadbeat_errors(method, seed, n, extra=()):
     return within, pos, vel, np.asarray(u)
 
 
+# The bracket solver is an alternative no controller or plan uses (`deadbeat_slip`'s default
+# is "gradient"): its check, a minute of compilation of its own, runs with the heavy tests.
 @pytest.mark.slow
-@pytest.mark.parametrize("method", ["bracket", "gradient"])
+@pytest.mark.parametrize("method", [pytest.param("bracket", marks=pytest.mark.heavy),
+                                    "gradient"])
 def test_deadbeat_recovers_targets_small(method):
     # "bracket" also gets the targets on which a single bisection ended on the wrong branch.
     extra = NON_MONOTONE if method == "bracket" else ()
