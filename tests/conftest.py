@@ -54,8 +54,9 @@ SLOWEST_FIRST = [
     "test_parkour.py", "test_slip_plan.py", "test_notebooks.py", "test_slip.py",
     "test_slip_table.py", "test_reference.py", "test_adaptive.py", "test_plan.py",
     "test_regions.py", "test_reference_slip.py", "test_mppc_disturbed.py", "test_devices.py",
-    "test_checkpoint.py", "test_repro.py", "test_cli.py", "test_parkour_recovery.py",
-    "test_properties.py", "test_pool.py", "test_explore.py", "test_parkour_notebook.py",
+    "test_checkpoint.py", "test_fixed_loops.py", "test_repro.py", "test_cli.py",
+    "test_parkour_recovery.py", "test_properties.py", "test_pool.py", "test_explore.py",
+    "test_parkour_notebook.py",
     "test_api.py", "test_foothold.py", "test_distributed.py", "test_malformed.py",
     "test_goals.py", "test_mppc_plan.py", "test_mujoco.py",
 ]

@@ -14,6 +14,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._core.batching import bounded_while
 from .._core.errors import InputError
 from .._core.params import REFERENCE_HOPPER, Hopper
 from .._core.programs import jit
@@ -234,11 +235,11 @@ def _slip_scales(hopper: Hopper):
     return scale, SLIP_STAGE_C2 * length**2
 
 
-def _first_accepted(one, goals, h, valid):
+def _first_accepted(one, goals, h, valid, fixed=False):
     """`one(goal, h) -> (u, miss, pred)` on the valid candidates in order, each only where
     every earlier one missed (`miss > 1`). One while loop: under `vmap` a candidate costs
     nothing in a batch whose lanes all accepted an earlier one (or have none valid).
-    Candidates not tried keep `miss = inf`."""
+    Candidates not tried keep `miss = inf`. `fixed`: `bounded_while`'s fixed loop."""
     n = goals.shape[0]
     order = jnp.argsort(~valid, stable=True)
     n_valid = jnp.sum(valid)
@@ -255,7 +256,7 @@ def _first_accepted(one, goals, h, valid):
 
     carry = (jnp.asarray(0), jnp.zeros((n, 3)), jnp.full((n,), jnp.inf),
              jnp.full((n, 3), jnp.nan))
-    _, us, misses, preds = jax.lax.while_loop(more, next_one, carry)
+    _, us, misses, preds = bounded_while(more, next_one, carry, n, fixed)
     return us, misses, preds
 
 
@@ -316,9 +317,10 @@ def decide_slip(apex, tables: PlanTables, hopper: Hopper, recover: bool = False,
     terrain = tables.terrain if heights is None else tables.terrain.with_heights(heights)
     scale, stage_c2 = _slip_scales(hopper)
 
+    tol = decision_tol()
+
     def one(apex, goal, h_):
-        search = DeadbeatSearch(tol=decision_tol(), table=tables.slip, fallback=False,
-                                accept=stage_c2)
+        search = DeadbeatSearch(tol=tol, table=tables.slip, fallback=False, accept=stage_c2)
         u, _, pred, code = deadbeat_slip(apex, goal, h_, hopper, search, terrain=terrain,
                                          wind=wind, predict=True)
         miss = jnp.max(jnp.abs(pred - goal) / scale)
@@ -354,7 +356,8 @@ def decide_slip(apex, tables: PlanTables, hopper: Hopper, recover: bool = False,
         if tables.slip is None:
             u, miss, pred = jax.vmap(one, (None, 0, 0))(apex, goals, h)
         else:
-            u, miss, pred = _first_accepted(lambda g, h_: one(apex, g, h_), goals, h, valid)
+            u, miss, pred = _first_accepted(lambda g, h_: one(apex, g, h_), goals, h, valid,
+                                            tol.fixed_loops)
         miss = jnp.where(valid & ~(captures & (miss > 1.0)), miss, jnp.inf)
         good = miss <= 1.0
         pick = jnp.where(jnp.any(good), jnp.argmax(good), jnp.argmin(miss))
@@ -384,7 +387,8 @@ def decide_slip(apex, tables: PlanTables, hopper: Hopper, recover: bool = False,
     no, zero = jnp.asarray(False), jnp.asarray(0, jnp.int32)
     blank = (no, jnp.zeros(3, jnp.result_type(float)), zero, no)
     carry = (zero, jnp.asarray(True), no, zero, blank, blank)
-    _, _, stuck, _, first, again = jax.lax.while_loop(lambda c: c[1], turn, carry)
+    _, _, stuck, _, first, again = bounded_while(lambda c: c[1], turn, carry, 2,
+                                                 tol.fixed_loops)
     # Where no other policy is left, `again` found nothing and the first decision stands.
     use = stuck & again[0] & (recover_again | ~again[3])
     out = jax.tree.map(lambda a, b: jnp.where(use, a, b), again, first)

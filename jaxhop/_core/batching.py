@@ -88,7 +88,7 @@ def pad_terrain(t: Terrain, n: int) -> Terrain:
                    pad_to(t.heights, n, h), t.name, None)
 
 
-def run_once(flag, fn, init):
+def run_once(flag, fn, init, fixed: bool = False):
     """`fn(zero)` where the traced `flag` holds, else `init`, as a while loop of at most one
     turn: under `vmap` a batch in which no lane needs it skips it (a `cond` would not).
 
@@ -96,10 +96,37 @@ def run_once(flag, fn, init):
     computation: XLA's while-loop invariant code motion would otherwise hoist an invariant
     `fn` out of the loop, to run whether or not the flag holds (measured: 8x the time of a
     deadbeat solve that never needed it). jaxhop's programs compile without that pass
-    (`COMPILER_OPTIONS`); a plain `jax.jit` of them runs it."""
+    (`COMPILER_OPTIONS`); a plain `jax.jit` of them runs it.
+
+    `fixed`: `fn` runs on every lane and `flag` selects its result (`bounded_while`)."""
+    if fixed:
+        return _select(flag, fn(jnp.zeros(())), init)
+
     def body(c):
         zero = jnp.where(c[0], 0.0, jnp.nan)
         return jnp.asarray(False), fn(zero)
 
     _, out = jax.lax.while_loop(lambda c: c[0], body, (jnp.asarray(flag), init))
     return out
+
+
+def bounded_while(cond, body, init, turns: int, fixed: bool = False):
+    """`lax.while_loop(cond, body, init)` for a loop that ends within `turns` turns.
+
+    `fixed`: a loop of exactly `turns` turns instead (a `scan`), in which a lane whose
+    `cond` no longer holds keeps its carry: the same result, with no data-dependent loop.
+    On an accelerator every turn of a data-dependent loop waits for the host and runs
+    until the slowest lane ends; there a fixed loop costs the same work without the waits
+    (`docs/slip.md`, "Fixed-shape trial strides"). `turns` must bound the while loop's
+    turns, or the fixed loop stops early."""
+    if not fixed:
+        return jax.lax.while_loop(cond, body, init)
+
+    def turn(carry, _):
+        return _select(cond(carry), body(carry), carry), None
+
+    return jax.lax.scan(turn, init, None, length=turns)[0]
+
+
+def _select(flag, new, old):
+    return jax.tree.map(lambda a, b: jnp.where(flag, a, b), new, old)

@@ -33,7 +33,7 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from ..._core.batching import run_once
+from ..._core.batching import bounded_while, run_once
 from ..._core.params import Hopper
 from ..bhop import safe_sqrt
 from ..flight import OK, touchdown
@@ -59,17 +59,19 @@ TH_LO, TH_HI = -jnp.pi / 3, jnp.pi / 3
 # and DECISION_TOL by at most 6.5e-5: a controller's decision, whose prediction is accepted
 # within 5 cm of its goal, polishes on the cheaper strides (docs/slip.md, "Deadbeat"). On an
 # accelerator a decision runs fixed-shape strides instead (`FIXED_DECISION_TOL`, 10 steps
-# per stance phase, at most 3.0e-6 there; docs/slip.md, "Fixed-shape trial strides").
+# per stance phase, at most 3.0e-6 there), in searches of fixed shape (`fixed_loops`: no
+# data-dependent loop in the decision; docs/slip.md, "Fixed-shape trial strides").
 SEARCH_TOL = Tolerances(rtol=1e-8, atol=1e-8)
 DECISION_TOL = Tolerances(rtol=1e-5, atol=1e-5)
-FIXED_DECISION_TOL = Tolerances(steps=10)
+FIXED_DECISION_TOL = Tolerances(steps=10, fixed_loops=True)
 
 
 def decision_tol(platform: str | None = None) -> Tolerances:
     """A decision's trial strides on `platform` (default: JAX's default backend): adaptive
     (`DECISION_TOL`) on a CPU, where a stride's few adaptive steps cost less than the fixed
-    ones, fixed-shape (`FIXED_DECISION_TOL`) elsewhere, where every turn of a data-dependent
-    loop waits for the host (docs/slip.md, "Fixed-shape trial strides")."""
+    ones, fixed-shape strides and searches (`FIXED_DECISION_TOL`) elsewhere, where every
+    turn of a data-dependent loop waits for the host (docs/slip.md, "Fixed-shape trial
+    strides")."""
     platform = jax.default_backend() if platform is None else platform
     return DECISION_TOL if platform == "cpu" else FIXED_DECISION_TOL
 
@@ -127,7 +129,7 @@ def _wind_kd(apex, goal, h, th, kc, x_b, v_td, hopper: Hopper, tol: Tolerances, 
         t_lo = jnp.maximum(v_lo[1], 0.0) / hopper.g
         return energy_kd(apex, goal, kc, x_b[0], hopper, v_td[0], goal[2] - wind * t_lo)
 
-    return run_once(wind != 0.0, second, kd)
+    return run_once(wind != 0.0, second, kd, tol.fixed_loops)
 
 
 def trial_stride(apex, goal, h, th, kc, hopper: Hopper, tol: Tolerances, terrain=None, wind=None,
@@ -245,7 +247,8 @@ def initial_guesses(apex, goal, h, hopper, tol, terrain=None, wind=None):
 
 
 def deadbeat_gradient(apex, goal, h, hopper, tol, max_iter=16, cost_tol=1e-16,
-                       terrain=None, wind=None, starts=None, min_trust=0.0, stall=0.0):
+                       terrain=None, wind=None, starts=None, min_trust=0.0, stall=0.0,
+                       max_turns=None):
     """Damped Gauss-Newton on C2 over `p = (th_td, s)`, the Jacobian by forward mode through
     diffrax (two tangents); optax applies the steps. A trial that does not lower C2 is
     rejected and quarters the step scale; an accepted one doubles it (up to 1). A start
@@ -254,8 +257,9 @@ def deadbeat_gradient(apex, goal, h, hopper, tol, max_iter=16, cost_tol=1e-16,
     after an accepted step that gains less than the fraction `stall` of C2 (a target out
     of reach: the valley's floor).
 
-    `starts`: `(n, 2)` starting points (default `initial_guesses`). Returns `(th_td, kc,
-    c2)` of the best end point.
+    `starts`: `(n, 2)` starting points (default `initial_guesses`). `max_turns`: a static
+    bound of a traced `max_iter`, for `tol.fixed_loops` (a loop of `max_turns + 1` turns).
+    Returns `(th_td, kc, c2)` of the best end point.
     """
     tol = tol.forward()
     sqrt_w = jnp.sqrt(jnp.array([W_POS, W_POS, W_VEL]))
@@ -303,7 +307,8 @@ def deadbeat_gradient(apex, goal, h, hopper, tol, max_iter=16, cost_tol=1e-16,
     def solve(p0):
         carry = (p0, jnp.zeros(3), jnp.zeros((3, 2)), jnp.asarray(jnp.inf), p0,
                  jnp.array(0.5), opt.init(p0), -1, jnp.asarray(False))
-        best, _, _, cost, *_ = jax.lax.while_loop(cond, body, carry)
+        turns = (max_iter if max_turns is None else max_turns) + 1  # step -1 included
+        best, _, _, cost, *_ = bounded_while(cond, body, carry, turns, tol.fixed_loops)
         return best, cost
 
     if starts is None:
@@ -337,5 +342,5 @@ def clipped_controls(apex, goal, h, th, kc, hopper, tol, terrain=None, wind=None
         return nxt, code
 
     trial = (out[0], jnp.where((code == OK) & out[4], OK, jnp.maximum(code, 1)))
-    pred, code = run_once(clipped, stride, trial)
+    pred, code = run_once(clipped, stride, trial, tol.fixed_loops)
     return u, ok, pred, code

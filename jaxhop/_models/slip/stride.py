@@ -46,6 +46,10 @@ class Tolerances(eqx.Module):
     `steps = 0`: adaptive Tsit5 steps at `rtol`, `atol`, the phase's end located by
     diffrax's event (`adjoint` for reverse mode). `steps > 0`: a fixed-shape phase
     (`fixed_phase`) of that many equal Tsit5 steps; `rtol`, `atol` and `adjoint` unused.
+    `fixed_loops`: the searches around the strides (Gauss-Newton turns, table starts,
+    candidates) run a fixed number of turns with finished lanes frozen
+    (`jaxhop._core.batching.bounded_while`): with fixed-shape strides, no data-dependent
+    loop is left (accelerators).
     """
 
     rtol: float = eqx.field(static=True, default=RTOL)
@@ -53,6 +57,7 @@ class Tolerances(eqx.Module):
     adjoint: diffrax.AbstractAdjoint = eqx.field(
         static=True, default_factory=diffrax.RecursiveCheckpointAdjoint)
     steps: int = eqx.field(static=True, default=0)
+    fixed_loops: bool = eqx.field(static=True, default=False)
 
     @property
     def accuracy(self) -> float:
@@ -62,7 +67,8 @@ class Tolerances(eqx.Module):
 
     def forward(self):
         """These settings with forward-mode differentiation through the adaptive solves."""
-        return Tolerances(self.rtol, self.atol, diffrax.ForwardMode(), self.steps)
+        return Tolerances(self.rtol, self.atol, diffrax.ForwardMode(), self.steps,
+                          self.fixed_loops)
 
 
 STRIDE_TOL = Tolerances()
@@ -161,6 +167,10 @@ SPAN = 1.5
 SPAN_MAX = 1.25
 # Newton turns that locate the phase's end on the step's dense output.
 EVENT_NEWTON = 6
+# The Runge-Kutta stages of a fixed-shape step run in equinox's bounded loop (a scan of
+# conditional turns): forward-mode derivatives go through it, as through "lax"'s while loop,
+# and it leaves no data-dependent loop in the step.
+STAGES = "bounded"
 
 
 def phase_time(x0, k, hopper: Hopper, to_bottom: bool):
@@ -188,8 +198,7 @@ def fixed_phase(x0, k, hopper: Hopper, end, cond, steps: int):
     up-crosses 0. Every lane does the same work, and forward-mode derivatives go through
     it as through any arithmetic. Returns `(x_end, code)` as `_phase` does; a phase that
     does not end inside the span is `COLLISION`, as one that never ends."""
-    # The stages in a plain loop: forward-mode derivatives go through it.
-    term, solver, args = diffrax.ODETerm(_field), diffrax.Tsit5(scan_kind="lax"), (k, hopper)
+    term, solver, args = diffrax.ODETerm(_field), diffrax.Tsit5(scan_kind=STAGES), (k, hopper)
     span = jnp.minimum(SPAN * phase_time(x0, k, hopper, cond is _bottom),
                        SPAN_MAX * jnp.pi * safe_sqrt(hopper.m / k))
     dt = jnp.minimum(span, PHASE_T_MAX) / steps

@@ -34,7 +34,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..._core.batching import run_once
+from ..._core.batching import bounded_while, run_once
 from ..._core.params import Hopper
 from ..._core.paths import atomic_write, cache_dir
 from ..._core.programs import jit
@@ -395,20 +395,20 @@ def deadbeat_table(apex, goal, h, hopper, tol, table, terrain=None, wind=None,
             guesses = run_once((i >= TABLE_STARTS) & jnp.all(jnp.isnan(guesses)),
                                lambda zero: initial_guesses(apex + zero, goal, h, hopper, tol,
                                                             terrain, wind),
-                               guesses)
+                               guesses, tol.fixed_loops)
             p0 = jnp.where(table_start, p0, guesses[jnp.clip(i - TABLE_STARTS, 0, N_MULTI - 1)])
 
         th, kc, c = deadbeat_gradient(apex, goal, h, hopper, tol,
                                        jnp.where(table_start & ~none, POLISH_ITER, MULTI_ITER),
                                        polish_cost(tol), terrain, wind, p0[None],
-                                       POLISH_MIN_TRUST, POLISH_STALL)
+                                       POLISH_MIN_TRUST, POLISH_STALL, max(POLISH_ITER, MULTI_ITER))
         better = c < c2
         q = jnp.stack([th, (kc - kc_lo) / (kc_hi - kc_lo)])
         return i + 1, jnp.where(better, q, p), jnp.minimum(c, c2), guesses
 
     carry = (jnp.asarray(first), starts[0], jnp.asarray(jnp.inf),
              jnp.full((N_MULTI if multi else 0, 2), jnp.nan))
-    i, p, c2, _ = jax.lax.while_loop(more, next_start, carry)
+    i, p, c2, _ = bounded_while(more, next_start, carry, n_all, tol.fixed_loops)
     stage = jnp.where(i <= 1, 1, jnp.where(i <= TABLE_STARTS, 2, 3))  # of the last start
     return p[0], kc_lo + p[1] * (kc_hi - kc_lo), c2, stage
 
