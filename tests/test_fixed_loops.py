@@ -90,15 +90,16 @@ def test_an_accelerator_decision_has_no_data_dependent_loop(monkeypatch):
     tables = plan.tables(slip=True)
     apex = jnp.array([0.5, 1.5, 0.5])
 
-    def loops(platform):
-        monkeypatch.setattr(kernels, "decision_tol",
-                            lambda p=None, q=platform: kernels.DECISION_TOL if q == "cpu"
-                            else kernels.FIXED_DECISION_TOL)
+    def loops(tol):
+        # The decision's setting, as `decision_tol` picks it on a CPU or an accelerator.
+        monkeypatch.setattr(kernels, "decision_tol", lambda platform=None: tol)
         jaxpr = jax.make_jaxpr(lambda z, tb: decide_slip(z, tb, HOP, recover=True))(apex, tables)
         return _while_loops(jaxpr.jaxpr)
 
-    assert loops("cpu") >= 10  # adaptive strides, early exits: the walk finds them
-    assert loops("gpu") == 0
+    assert kernels.decision_tol("cpu") is kernels.DECISION_TOL
+    assert kernels.decision_tol("gpu") is kernels.FIXED_DECISION_TOL
+    assert loops(kernels.DECISION_TOL) >= 10  # adaptive strides, early exits: the walk finds them
+    assert loops(kernels.FIXED_DECISION_TOL) == 0
 
 
 # Two compilations of the decision's deadbeat, a minute and a half: with the heavy tests.
