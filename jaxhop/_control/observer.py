@@ -99,11 +99,12 @@ def slip_terms(obs: Observer, hopper: Hopper):
 
     def f(x):
         nxt, _ = slip_apex_map(x[1:], obs.u, obs.h, hopper, tol, x[0], obs.energy)
-        return nxt
+        return nxt, nxt
 
     x = jnp.concatenate([obs.wind[None], obs.apex])
-    jac = jax.jacfwd(f)(x)
-    return f(x), jac[:, 0], jac[:, 1:]
+    # The prediction comes with its derivatives: one pass through the solves, not two.
+    jac, pred = jax.jacfwd(f, has_aux=True)(x)
+    return pred, jac[:, 0], jac[:, 1:]
 
 
 def observe(obs: Observer, measured, sensor, hopper: Hopper, terms=bhop_terms,
