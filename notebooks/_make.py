@@ -243,11 +243,15 @@ assert rel.max() < 1e-7 and gain.min() > 0'''),
 The SLIP apex map has no closed form, so the deadbeat (eqs 12-16) is a search. `kd`
 follows from energy (eq 12), and `(th_td, kc)` are found by Gauss-Newton with forward-mode
 derivatives through the diffrax solve. We ask for `N` target apexes ahead of the same start
-and check the result with the simulated stride."""),
+and check the result with the simulated stride (the batch of strides, vmapped as above)."""),
     ("code", '''s = np.linspace(0.0, 1.0, N)
 targets = np.stack([0.55 + 0.35 * s, 1.25 + 0.1 * s, 0.7 + 0.6 * s], 1)
-deadbeat = jaxhop.jit(jax.vmap(jaxhop.deadbeat_slip, (None, 0, None, None)))
-u, solved = deadbeat(apex, jnp.asarray(targets), 0.0, hopper)
+# One target at a time, with the program the explorer above compiled (a deadbeat vmapped
+# over the targets is a program of its own: another 45 s of compilation).
+deadbeat = jaxhop.jit(jaxhop.deadbeat_slip)
+solves = [deadbeat(apex, jnp.asarray(t), 0.0, hopper) for t in targets]
+u = jnp.stack([uu for uu, _ in solves])
+solved = np.array([bool(ok) for _, ok in solves])
 reached, code = stride_batch(apex, u, 0.0, hopper)
 err = np.abs(np.asarray(reached) - targets).max(axis=1)
 for t, uu, e, good in zip(targets, np.asarray(u), err, np.asarray(solved)):
