@@ -137,3 +137,25 @@ def test_a_saved_program_is_keyed_by_every_source_file_of_the_package():
     expected = sorted(str(p.relative_to(root)) for p in root.rglob("*.py"))
     assert sorted(_programs.source_files()) == expected
     assert "_models/slip/kernels.py" in expected and "parkour/_run.py" in expected
+
+
+def test_every_run_setting_has_the_same_argument_types():
+    # A compiled run program is chosen by its arguments' types, weak typing included (a
+    # Python float is weakly typed, a NumPy scalar or a given tuple is not): every way of
+    # writing a tolerance or a disturbance must give the same types, else each compiles a
+    # program of its own (the default tolerance once did, beside every given one).
+    from jaxhop._control.runloop import run_config
+    from jaxhop._core.params import Disturbance, disturbance_for
+
+    def types(tree):
+        return [(x.dtype, x.shape, x.weak_type) for x in map(jax.typeof, jax.tree.leaves(tree))]
+
+    goal = np.array([9.0, 1.5, 0.0])
+    configs = [run_config(goal), run_config(goal, (0.05, 0.05, 0.15)),
+               run_config(goal, np.array([0.1, 0.1, 0.1])), run_config(goal, [1, 1, 1])]
+    assert all(types(c) == types(configs[0]) for c in configs)
+    worlds = [Disturbance(), Disturbance(wind=-0.2), Disturbance(wind=np.float64(-0.2)),
+              Disturbance(wind=jnp.float32(1), landing=1, sensor=[0.1, 0.1, 0.1]),
+              disturbance_for("wind+sensor+landing")]
+    assert all(types(d) == types(worlds[0]) for d in worlds)
+    assert float(worlds[2].wind) == -0.2 and worlds[0].sensor.shape == (3,)

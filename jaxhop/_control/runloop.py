@@ -73,7 +73,7 @@ class RunConfig(eqx.Module):
     """
 
     goal: jnp.ndarray
-    tolerance: jnp.ndarray = eqx.field(default_factory=lambda: jnp.full(3, 0.05))
+    tolerance: jnp.ndarray = eqx.field(default_factory=lambda: jnp.full(3, 0.05, float))
     max_steps: int = eqx.field(static=True, default=60)
     model: Model = eqx.field(static=True, default=BHOP, converter=model_for)
     energy_feedback: bool = eqx.field(static=True, default=False)
@@ -93,8 +93,8 @@ def run_config(goal, tolerance=None, max_steps: int = 60, model="bhop",
     controller = check_controller(controller)
     shared = not model.instant_stance
     return RunConfig(goal=jnp.asarray(goal, float),
-                     tolerance=jnp.full(3, 0.05) if tolerance is None
-                     else jnp.asarray(tolerance, float), max_steps=max_steps, model=model,
+                     tolerance=jnp.asarray((0.05, 0.05, 0.05) if tolerance is None
+                                           else tolerance, float), max_steps=max_steps, model=model,
                      energy_feedback=energy_feedback,
                      controller="adaptive" if shared else controller,
                      adaptive_on=jnp.asarray(controller == "adaptive") if shared else None)

@@ -47,8 +47,16 @@ def froude_scales(hopper) -> dict:
             "energy": (m / m0) * (g / g0) * length}
 
 
+def _float_array(x):
+    # One dtype whatever the caller passes (a Python float is weakly typed, a NumPy or JAX
+    # scalar is not): a compiled run program is chosen by its arguments' types, so `wind=0.2`
+    # and `wind=np.float64(0.2)` would each compile one of their own.
+    return jnp.asarray(x, dtype=jnp.result_type(float))
+
+
 class Disturbance(eqx.Module):
-    """Per-run disturbance settings (`docs/decisions.md`, "Disturbances").
+    """Per-run disturbance settings (`docs/decisions.md`, "Disturbances"), float arrays
+    whatever their type as given.
 
     Attributes:
         wind: constant horizontal acceleration in every flight phase (m/s^2).
@@ -56,9 +64,10 @@ class Disturbance(eqx.Module):
         landing: half-width of the uniform horizontal error of each landing (m).
     """
 
-    wind: float = 0.0
-    sensor: jnp.ndarray = eqx.field(default_factory=lambda: jnp.zeros(3))
-    landing: float = 0.0
+    wind: jnp.ndarray = eqx.field(default=0.0, converter=_float_array)
+    sensor: jnp.ndarray = eqx.field(default_factory=lambda: jnp.zeros(3),
+                                    converter=_float_array)
+    landing: jnp.ndarray = eqx.field(default=0.0, converter=_float_array)
 
 
 #: Named disturbances. `ground` perturbs the perceived map (`perceived_terrain`), not the
