@@ -53,9 +53,9 @@ class ExecSettings:
     """How a batch is executed; none of this changes an outcome.
 
     Attributes:
-        chunk: runs per chunk (default: the model's, 256 BHop runs or 32 SLIP runs; the
-            next power of two for smaller batches). Chunks are what is checkpointed and
-            what each `jax.distributed` process runs.
+        chunk: runs per chunk (default: the model's, 256 BHop runs or 32 SLIP runs; for
+            smaller batches the next power of two, at least 32). Chunks are what is
+            checkpointed and what each `jax.distributed` process runs.
         lanes: SLIP lane-pool lanes per device (default 32 on a CPU, 4 096 on an
             accelerator, or `$JAXHOP_POOL_LANES`).
         pool: run through the lane pool (default: for SLIP) instead of vmapped chunks.
