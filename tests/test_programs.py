@@ -144,7 +144,7 @@ def test_every_run_setting_has_the_same_argument_types():
     # Python float is weakly typed, a NumPy scalar or a given tuple is not): every way of
     # writing a tolerance or a disturbance must give the same types, else each compiles a
     # program of its own (the default tolerance once did, beside every given one).
-    from jaxhop._control.runloop import run_config
+    from jaxhop._control.runloop import RunConfig, run_config
     from jaxhop._core.params import Disturbance, disturbance_for
 
     def types(tree):
@@ -152,7 +152,8 @@ def test_every_run_setting_has_the_same_argument_types():
 
     goal = np.array([9.0, 1.5, 0.0])
     configs = [run_config(goal), run_config(goal, (0.05, 0.05, 0.15)),
-               run_config(goal, np.array([0.1, 0.1, 0.1])), run_config(goal, [1, 1, 1])]
+               run_config(goal, np.array([0.1, 0.1, 0.1])), run_config(goal, [1, 1, 1]),
+               RunConfig(list(goal), (0.05, 0.05, 0.05)), RunConfig(jnp.asarray(goal))]
     assert all(types(c) == types(configs[0]) for c in configs)
     worlds = [Disturbance(), Disturbance(wind=-0.2), Disturbance(wind=np.float64(-0.2)),
               Disturbance(wind=jnp.float32(1), landing=1, sensor=[0.1, 0.1, 0.1]),

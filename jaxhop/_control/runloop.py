@@ -24,7 +24,7 @@ import jax.numpy as jnp
 
 from .._core.batching import run_once
 from .._core.errors import InputError
-from .._core.params import Disturbance, Hopper
+from .._core.params import Disturbance, Hopper, float_array
 from .._core.programs import jit
 from .._core.result import Result
 from .._core.terrain import Terrain
@@ -55,8 +55,15 @@ def check_controller(name: str) -> str:
     return name
 
 
+#: The goal tolerance per axis `(y, z, ydot)` of a run (m, m, m/s).
+DEFAULT_TOLERANCE = (0.05, 0.05, 0.05)
+
+
 class RunConfig(eqx.Module):
     """Execution settings.
+
+    `goal` and `tolerance` are float arrays whatever their type as given (`float_array`), so
+    that every way of writing them runs on the same compiled program.
 
     `controller`: `"paper"` (the paper's reactive controller, Fig. 8) or `"adaptive"`
     (disturbance observer, wind-aware deadbeat, recovery outside the domains).
@@ -72,8 +79,8 @@ class RunConfig(eqx.Module):
     `None`: on.
     """
 
-    goal: jnp.ndarray
-    tolerance: jnp.ndarray = eqx.field(default_factory=lambda: jnp.full(3, 0.05, float))
+    goal: jnp.ndarray = eqx.field(converter=float_array)
+    tolerance: jnp.ndarray = eqx.field(default=DEFAULT_TOLERANCE, converter=float_array)
     max_steps: int = eqx.field(static=True, default=60)
     model: Model = eqx.field(static=True, default=BHOP, converter=model_for)
     energy_feedback: bool = eqx.field(static=True, default=False)
@@ -92,9 +99,8 @@ def run_config(goal, tolerance=None, max_steps: int = 60, model="bhop",
     model = model_for(model)
     controller = check_controller(controller)
     shared = not model.instant_stance
-    return RunConfig(goal=jnp.asarray(goal, float),
-                     tolerance=jnp.asarray((0.05, 0.05, 0.05) if tolerance is None
-                                           else tolerance, float), max_steps=max_steps, model=model,
+    return RunConfig(goal=goal, tolerance=DEFAULT_TOLERANCE if tolerance is None else tolerance,
+                     max_steps=max_steps, model=model,
                      energy_feedback=energy_feedback,
                      controller="adaptive" if shared else controller,
                      adaptive_on=jnp.asarray(controller == "adaptive") if shared else None)

@@ -47,10 +47,11 @@ def froude_scales(hopper) -> dict:
             "energy": (m / m0) * (g / g0) * length}
 
 
-def _float_array(x):
-    # One dtype whatever the caller passes (a Python float is weakly typed, a NumPy or JAX
-    # scalar is not): a compiled run program is chosen by its arguments' types, so `wind=0.2`
-    # and `wind=np.float64(0.2)` would each compile one of their own.
+def float_array(x):
+    """`x` as a float array, one type whatever the caller passes (a Python float is weakly
+    typed, a NumPy or JAX scalar is not): a compiled run program is chosen by its arguments'
+    types, so `wind=0.2` and `wind=np.float64(0.2)` would each compile one of their own. The
+    converter of the run settings' float fields."""
     return jnp.asarray(x, dtype=jnp.result_type(float))
 
 
@@ -64,10 +65,10 @@ class Disturbance(eqx.Module):
         landing: half-width of the uniform horizontal error of each landing (m).
     """
 
-    wind: jnp.ndarray = eqx.field(default=0.0, converter=_float_array)
+    wind: jnp.ndarray = eqx.field(default=0.0, converter=float_array)
     sensor: jnp.ndarray = eqx.field(default_factory=lambda: jnp.zeros(3),
-                                    converter=_float_array)
-    landing: jnp.ndarray = eqx.field(default=0.0, converter=_float_array)
+                                    converter=float_array)
+    landing: jnp.ndarray = eqx.field(default=0.0, converter=float_array)
 
 
 #: Named disturbances. `ground` perturbs the perceived map (`perceived_terrain`), not the
