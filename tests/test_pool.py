@@ -19,13 +19,14 @@ real = _pool._lane_batch
 
 
 def attempt(seed):
-    # Each step's lanes, per device, with a random delay before it: threads that take runs
-    # as they get to them would share them out differently on every attempt.
+    # Each step's lanes, per thread (named by the parity of its runs: the threads' devices
+    # are all the first one on a CPU), with a random delay before it: threads that take
+    # runs as they get to them would share them out differently on every attempt.
     rng, steps = np.random.default_rng(seed), {}
 
     def slow(pick, treedef, dev):
         time.sleep(float(rng.uniform(0.0, 0.004)))
-        steps.setdefault(str(dev), []).append([int(p[0]) for p in pick])
+        steps.setdefault(str(pick[0][0] % 2), []).append([int(p[0]) for p in pick])
         return real(pick, treedef, dev)
 
     _pool._lane_batch = slow
@@ -37,12 +38,16 @@ def attempt(seed):
 
 
 a, b = attempt(0), attempt(1)
-print(json.dumps({"devices": len(jax.devices()), "runs": len(init), "a": a, "b": b}))
+# The pool step's compiled executables (one per device it ran on).
+from jaxhop._core import programs
+compiled = sum(f._cache_size() for f in programs._LOADED.values())
+print(json.dumps({"devices": len(jax.devices()), "runs": len(init), "a": a, "b": b,
+                  "compiled": compiled}))
 """
 
 
 @pytest.mark.slow  # starts processes
-def test_runs_are_dealt_to_devices_in_a_fixed_order(tmp_path):
+def test_runs_are_dealt_to_the_threads_in_a_fixed_order_and_compiled_once(tmp_path):
     env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2",
                JAXHOP_CACHE=str(tmp_path))
     out = subprocess.run([sys.executable, "-c", _SCRIPT], env=env, capture_output=True,
@@ -51,9 +56,19 @@ def test_runs_are_dealt_to_devices_in_a_fixed_order(tmp_path):
     assert res["devices"] == 2 and res["runs"] > 64  # more runs than one step's lanes
     (steps_a, apexes_a, n_a), (steps_b, apexes_b, n_b) = res["a"], res["b"]
     assert sorted(steps_a) == sorted(steps_b) and len(steps_a) == 2
-    for dev in steps_a:  # the same lanes, step for step, on each device
-        assert steps_a[dev] == steps_b[dev]
+    for thread in steps_a:  # the same lanes, step for step, in each thread
+        assert steps_a[thread] == steps_b[thread]
     assert apexes_a == apexes_b and n_a == n_b
+    # Two CPU devices, two threads, one compilation of the step (both threads on one device).
+    assert res["compiled"] == 1
+
+
+def test_pool_threads_share_the_first_cpu_device():
+    from jaxhop._execution.pool import worker_devices
+
+    cpus, gpus = [_Device("cpu"), _Device("cpu")], [_Device("gpu"), _Device("gpu")]
+    assert worker_devices(cpus) == [cpus[0], cpus[0]]
+    assert worker_devices(gpus) == gpus
 
 
 class _Device:

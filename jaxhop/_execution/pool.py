@@ -6,9 +6,10 @@ deadbeat solve each) a chunk holding one run that loops to max_steps costs 60 st
 lane where most runs need about 12. So SLIP runs go through a pool instead: every device
 steps `pool_lanes()` runs by one stride (`run_step`, vmapped), the host retires the runs
 that ended and puts the next ones in their lanes (one host thread per device, each with
-its own share of the runs). Lanes with nothing to run repeat a live run of their device
-(same cost, results discarded). The lane count is fixed, so one compilation per device
-serves every sweep: `POOL_LANES` on a CPU, where lanes share a core; `ACCELERATOR_LANES`
+its own share of the runs; on a CPU all of them on its first device, `worker_devices`).
+Lanes with nothing to run repeat a live run of their thread (same cost, results
+discarded). The lane count is fixed, so one compilation per device serves every sweep:
+`POOL_LANES` on a CPU, where lanes share a core; `ACCELERATOR_LANES`
 on a GPU or TPU, where a step costs about the same for one lane as for thousands (its
 time is the chain of small solver steps, not the arithmetic); `$JAXHOP_POOL_LANES`
 overrides both.
@@ -44,6 +45,20 @@ def pool_lanes(device=None) -> int:
     return POOL_LANES if device.platform == "cpu" else ACCELERATOR_LANES
 
 
+def worker_devices(devices) -> list:
+    """The device of each of the pool's host threads, one thread per device in `devices`.
+
+    On a CPU every thread runs on the first device: JAX's CPU client runs concurrent
+    executions of one device on its cores, as fast as on a device per core (two threads on
+    two cores: the same throughput either way), and the step, whose executable is bound to
+    its device, is compiled once instead of once per device (the SLIP step: about a minute
+    each on the 2-core CPU)."""
+    devices = list(devices)
+    if devices and all(d.platform == "cpu" for d in devices):
+        return [devices[0]] * len(devices)
+    return devices
+
+
 def _pool_step(carry, fresh, apex0, index, key, tables, true_terrain, hopper, disturbance,
                config):
     # Lanes marked `fresh` start their run here (`run_init` from `apex0`).
@@ -73,12 +88,13 @@ def pool_runs(runs, apex0, key, consts, config: RunConfig, on_done, lanes=None, 
     code is then `run_result`'s for a run cut off), with the same compiled step.
     `devices`: default, every local device.
 
-    One host thread per device, each with its own queue (every `n_devices`-th run): the
-    devices step (and, the first time, compile) concurrently, and none waits for another.
-    A run's last bits depend on the lane it occupies and on its neighbours (XLA vectorises
-    the lanes), so the runs are dealt to the devices in a fixed order rather than taken
-    from a shared queue as each thread gets to it: the same runs then give bitwise the
-    same results on the same number of devices, whatever the threads' timing.
+    One host thread per device, each with its own queue (every `n_devices`-th run), on the
+    device `worker_devices` gives it: the threads step concurrently, and none waits for
+    another after the first step (the compilation). A run's last bits depend on the lane
+    it occupies and on its neighbours (XLA vectorises the lanes), so the runs are dealt to
+    the threads in a fixed order rather than taken from a shared queue as each thread gets
+    to it: the same runs then give bitwise the same results on the same number of
+    devices, whatever the threads' timing.
     """
     if not runs:
         return
@@ -87,8 +103,16 @@ def pool_runs(runs, apex0, key, consts, config: RunConfig, on_done, lanes=None, 
     blank, treedef = jax.tree_util.tree_flatten(jax.device_get(run_init(jnp.zeros(3), config)))
     devices = list(jax.local_devices() if devices is None else devices)
     lock, stop = threading.Lock(), threading.Event()
+    slots = worker_devices(devices)
+    compiled = threading.Event()  # the step has run once: the others find it compiled
 
-    def worker(dev, queue):
+    def worker(dev, queue, wait):
+        try:
+            work(dev, queue, wait)
+        finally:
+            compiled.set()  # also when it failed: no thread waits for it
+
+    def work(dev, queue, wait):
         on_dev = jax.device_put((key,) + tuple(consts), dev)
         active = []  # (run, carry leaves, fresh)
         while not stop.is_set():
@@ -99,8 +123,12 @@ def pool_runs(runs, apex0, key, consts, config: RunConfig, on_done, lanes=None, 
             # Spare lanes repeat live runs (same cost; their results are discarded).
             pick = [active[j % len(active)] for j in range(lanes)]
             carry, index, fresh = _lane_batch(pick, treedef, dev)
+            if wait:
+                compiled.wait()
+                wait = False
             out = step(*jax.tree_util.tree_leaves((carry, *jax.device_put(
                 (fresh, apex0[index], index), dev), *on_dev)))
+            compiled.set()
             *leaves, live, final = [np.asarray(x) for x in out]
             still, ended = [], []
             for slot, (run, _, _) in enumerate(active):
@@ -124,9 +152,12 @@ def pool_runs(runs, apex0, key, consts, config: RunConfig, on_done, lanes=None, 
     args0 = (carry0, fresh0, apex0[index0], index0, key, *consts)
     step = stored_program("pool-step", _pool_step, args0)
     step.trace(*jax.tree_util.tree_leaves(args0))
-    with ThreadPoolExecutor(len(devices)) as ex:
-        futures = [ex.submit(worker, dev, deque(runs[i::len(devices)]))
-                   for i, dev in enumerate(devices)]
+    # Threads sharing a device wait for the first one's first step, which compiles the
+    # step for that device; on other devices they compile concurrently.
+    with ThreadPoolExecutor(len(slots)) as ex:
+        futures = [ex.submit(worker, dev, deque(runs[i::len(slots)]),
+                             dev in slots[:i])
+                   for i, dev in enumerate(slots)]
         try:
             for f in futures:
                 f.result()
