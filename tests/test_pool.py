@@ -5,6 +5,7 @@ import os
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 _SCRIPT = r"""
@@ -92,3 +93,22 @@ def test_lane_count_follows_the_platform_and_the_override(monkeypatch):
             assert "JAXHOP_POOL_LANES" in str(err)
         else:
             raise AssertionError(f"{bad!r} was accepted")
+
+
+def test_a_step_takes_the_longest_waiting_run_and_its_nearest_neighbours():
+    from jaxhop._execution.pool import _choose
+
+    rng = np.random.default_rng(3)
+    apex0 = rng.uniform(0.0, 10.0, (40, 3))
+    # [run, carry leaves (the apex first), fresh, turn]: runs 0-19 in progress, 20-39 fresh.
+    moved = apex0 + 1.0
+    active = [[r, [moved[r]], False, int(rng.integers(0, 5))] for r in range(20)]
+    active += [[r, None, True, 5] for r in range(20, 40)]
+    y = np.array([moved[r, 0] if r < 20 else apex0[r, 0] for r in range(40)])
+    assert _choose(active[:8], 8, apex0) == list(range(8))  # all fit: every one steps
+    got = _choose(active, 8, apex0)
+    head = min(range(40), key=lambda i: (active[i][3], i))
+    # Brute force: the head, then the 7 others nearest to it in y.
+    others = sorted((abs(y[i] - y[head]), i) for i in range(40) if i != head)[:7]
+    assert got == sorted([head] + [i for _, i in others])
+    assert got == sorted(got) and len(set(got)) == 8

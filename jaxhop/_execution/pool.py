@@ -7,6 +7,9 @@ lane where most runs need about 12. So SLIP runs go through a pool instead: ever
 steps `pool_lanes()` runs by one stride (`run_step`, vmapped), the host retires the runs
 that ended and puts the next ones in their lanes (one host thread per device, each with
 its own share of the runs; on a CPU all of them on its first device, `worker_devices`).
+On a CPU a thread keeps more runs in progress than it has lanes and steps, each time, the
+run that has waited longest with its neighbours on the terrain (`_choose`): their
+decisions take alike work, and a batched decision lasts as long as its slowest lane.
 Lanes with nothing to run repeat a live run of their thread (same cost, results
 discarded). The lane count is fixed, so one compilation per device serves every sweep:
 `POOL_LANES` on a CPU, where lanes share a core; `ACCELERATOR_LANES`
@@ -57,6 +60,34 @@ def worker_devices(devices) -> list:
     if devices and all(d.platform == "cpu" for d in devices):
         return [devices[0]] * len(devices)
     return devices
+
+
+#: Runs in progress per host thread, in units of its lanes, where a step costs what its
+#: slowest lane costs (a CPU): each step takes the run that has waited longest and the
+#: runs nearest to it on the terrain, whose decisions take alike work.
+CPU_WINDOW = 8
+
+
+def pool_window(device) -> int:
+    """Runs in progress per thread, in lanes: `CPU_WINDOW` on a CPU, 1 elsewhere (every
+    run in progress steps in every step)."""
+    return CPU_WINDOW if device.platform == "cpu" else 1
+
+
+def _choose(active, lanes: int, apex0) -> list[int]:
+    """The runs of `active` (`[run, leaves, fresh, turn]`) that step next, in list order:
+    all of them where they fit the lanes, else the one that has waited longest (the
+    earliest `turn`, then the earliest in the list) and the `lanes - 1` runs whose apex
+    lies nearest to its apex in `y` (ties: the earlier in the list). A SLIP decision in a
+    batch lasts as long as its slowest lane, and runs over the same stretch of terrain
+    decide on the same policies (`docs/decisions.md`, "SLIP runs: a lane pool")."""
+    if len(active) <= lanes:
+        return list(range(len(active)))
+    y = np.asarray([apex0[a[0]][0] if a[2] else a[1][0][0] for a in active])
+    head = min(range(len(active)), key=lambda i: (active[i][3], i))
+    gap = np.abs(y - y[head])
+    gap[head] = -1.0
+    return sorted(np.argsort(gap, kind="stable")[:lanes].tolist())
 
 
 def _pool_step(carry, fresh, apex0, index, key, tables, true_terrain, hopper, disturbance,
@@ -114,14 +145,17 @@ def pool_runs(runs, apex0, key, consts, config: RunConfig, on_done, lanes=None, 
 
     def work(dev, queue, wait):
         on_dev = jax.device_put((key,) + tuple(consts), dev)
-        active = []  # (run, carry leaves, fresh)
+        window = lanes * pool_window(dev)
+        active = []  # [run, carry leaves, fresh, the turn it last stepped or came in]
+        turn = 0
         while not stop.is_set():
-            while queue and len(active) < lanes:
-                active.append((queue.popleft(), blank, True))
+            while queue and len(active) < window:
+                active.append([queue.popleft(), blank, True, turn])
             if not active:
                 return
+            chosen = _choose(active, lanes, apex0)
             # Spare lanes repeat live runs (same cost; their results are discarded).
-            pick = [active[j % len(active)] for j in range(lanes)]
+            pick = [active[chosen[j % len(chosen)]][:3] for j in range(lanes)]
             carry, index, fresh = _lane_batch(pick, treedef, dev)
             if wait:
                 compiled.wait()
@@ -130,17 +164,20 @@ def pool_runs(runs, apex0, key, consts, config: RunConfig, on_done, lanes=None, 
                 (fresh, apex0[index], index), dev), *on_dev)))
             compiled.set()
             *leaves, live, final = [np.asarray(x) for x in out]
-            still, ended = [], []
-            for slot, (run, _, _) in enumerate(active):
+            ended = []
+            for slot, i in enumerate(chosen):
+                run = active[i][0]
                 mine = [x[slot] for x in leaves]
                 _, _, steps, k, (apexes, feet, used), control = (
                     jax.tree_util.tree_unflatten(treedef, mine))
                 if live[slot] and (strides is None or k < strides):
-                    still.append((run, mine, False))
+                    active[i] = [run, mine, False, turn]
                 else:
+                    active[i] = None
                     ended.append((run, (final[slot], steps, apexes, feet, used,
                                         control.recoveries)))
-            active = still
+            active = [a for a in active if a is not None]
+            turn += 1
             with lock:
                 for run, fields in ended:
                     on_done(run, fields)
