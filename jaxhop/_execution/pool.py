@@ -65,7 +65,7 @@ def worker_devices(devices) -> list:
 #: Runs in progress per host thread, in units of its lanes, where a step costs what its
 #: slowest lane costs (a CPU): each step takes the run that has waited longest and the
 #: runs nearest to it on the terrain, whose decisions take alike work.
-CPU_WINDOW = 8
+CPU_WINDOW = 16
 
 
 def pool_window(device) -> int:
