@@ -75,12 +75,14 @@ def pool_window(device) -> int:
 
 
 def _choose(active, lanes: int, apex0) -> list[int]:
-    """The runs of `active` (`[run, leaves, fresh, turn]`) that step next, in list order:
+    """The runs of `active` (`[run, carry leaves, fresh, turn]`; the first leaf is the
+    run's apex, `run_init`, and a fresh run's is its `apex0` row) that step next, in list order:
     all of them where they fit the lanes, else the one that has waited longest (the
     earliest `turn`, then the earliest in the list) and the `lanes - 1` runs whose apex
     lies nearest to its apex in `y` (ties: the earlier in the list). A SLIP decision in a
     batch lasts as long as its slowest lane, and runs over the same stretch of terrain
-    decide on the same policies (`docs/decisions.md`, "SLIP runs: a lane pool")."""
+    decide on the same policies (`docs/decisions.md`, "SLIP runs: a lane pool instead of
+    vmapped chunks")."""
     if len(active) <= lanes:
         return list(range(len(active)))
     y = np.asarray([apex0[a[0]][0] if a[2] else a[1][0][0] for a in active])
