@@ -66,8 +66,8 @@ def pytest_runtest_protocol(item, nextitem):
     row = {"test": item.nodeid, "wall": time.perf_counter() - start}
     for name, seconds in _totals.items():
         row[name] = seconds - totals.get(name, 0.0)
-    row["programs"] = {fn: round(s - programs.get(fn, 0.0), 2) for fn, s in _programs.items()
-                       if s - programs.get(fn, 0.0) >= PROGRAM_MIN_S}
+    spent = {fn: s - programs.get(fn, 0.0) for fn, s in _programs.items()}
+    row["programs"] = {fn: round(s, 2) for fn, s in spent.items() if s >= PROGRAM_MIN_S}
     _rows.append(row)
 
 
@@ -90,7 +90,7 @@ def summary(folder: str, top: int = 15) -> str:
     if not rows:
         raise SystemExit(f"no profile in {folder}: run pytest -p compile_profile first")
     cols = ("wall", "trace", "lower", "compile")
-    files = collections.defaultdict(lambda: collections.Counter())
+    files = collections.defaultdict(collections.Counter)
     programs = collections.Counter()
     compilations = collections.Counter()
     for r in rows:
