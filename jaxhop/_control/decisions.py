@@ -25,7 +25,7 @@ from .._planning.plan import PlanTables
 from .._planning.policies import candidate_situated
 from .._planning.regions import foot_lead
 from .foothold import mapped_height
-from .observer import NU_MIN_SLIP, Observer, observe, slip_terms
+from .observer import NU_MIN_SLIP, Q_MIN_SLIP, Observer, observe, slip_terms
 
 
 def bhop_stride(apex, u, terrain: Terrain, hopper: Hopper, wind=0.0):
@@ -483,7 +483,7 @@ class _Slip(Model):
 
     def observe(self, obs, measured, sensor, hopper, landing=0.0, stride_error=None):
         return observe(obs, measured, sensor, hopper, slip_terms, NU_MIN_SLIP, landing,
-                       stride_error)
+                       stride_error, Q_MIN_SLIP)
 
 
 # SLIP strides cost a deadbeat solve per lane and run lengths vary more (a vmapped while loop

@@ -21,7 +21,8 @@ estimated online from those prediction errors with a scalar Kalman filter
 The same predictions give the controller a filtered apex to decide on (an extended
 Kalman filter of the apex state; `docs/decisions.md`, "Apex filter"): the predicted apex
 `pred` with the new wind estimate, its covariance `J P J^T + H H^T var_a + Q` (`Q`: the
-landing error's variance on `y`, else model rounding), fused with the measurement of
+landing error's variance on `y` plus a floor: model rounding for the BHop, the error of the
+linearised stride for the SLIP), fused with the measurement of
 variance `w^2 / 3` per axis. Without sensor noise the estimate is the measurement,
 bit for bit; a run's first apex, and the one after a stride that did not complete, start
 the filter again from the measurement.
@@ -50,6 +51,11 @@ PROCESS_VAR = 1e-6
 R_MIN = 1e-12
 #: Floor of the apex prediction's variance, m^2 and (m/s)^2 (model rounding).
 Q_MIN = 1e-10
+#: The SLIP's floor, the same on every axis: its apex map, linearised about the estimate,
+#: is off by 5-21 mm (mm/s) rms at estimate errors of up to 3 cm (cm/s) and a wind 0.2 m/s^2
+#: off (`docs/decisions.md`, "Apex filter"); a filter that believed its prediction to 1e-5
+#: took a noiseless axis for the truth and moved the wind by tens of m/s^2 to fit it.
+Q_MIN_SLIP = 4e-4
 #: Innovations below this (m/s) are rounding, not wind: the filter skips them, so an
 #: undisturbed run keeps an estimate of exactly 0. The SLIP's floor is its integration
 #: noise: the prediction is a second diffrax solve of the executed stride (rtol 1e-10),
@@ -108,7 +114,7 @@ def slip_terms(obs: Observer, hopper: Hopper):
 
 
 def observe(obs: Observer, measured, sensor, hopper: Hopper, terms=bhop_terms,
-            nu_min=NU_MIN, landing=0.0, stride_error=None) -> Observer:
+            nu_min=NU_MIN, landing=0.0, stride_error=None, q_min=Q_MIN) -> Observer:
     """The Kalman update with the apex measured after the pending stride (none pending, or
     an innovation below `nu_min`: the estimate is kept), then the apex estimate (`fuse`).
 
@@ -117,7 +123,8 @@ def observe(obs: Observer, measured, sensor, hopper: Hopper, terms=bhop_terms,
     landing error on `y` (0: none). `stride_error`: half-widths `(y, z, ydot)` of a
     uniform error of the stride that the model's prediction does not describe (a hopper
     that is not the model, `jaxhop.mujoco`; `None`: none), process noise of the apex
-    prediction and noise of the wind's innovation.
+    prediction and noise of the wind's innovation. `q_min`: the floor of the apex
+    prediction's variance (`Q_MIN`, `Q_MIN_SLIP`).
     """
     pred, h_wind, jac = terms(obs, hopper)
     # The new apex carries w_v; the apex the prediction started from carries est_var.
@@ -131,19 +138,19 @@ def observe(obs: Observer, measured, sensor, hopper: Hopper, terms=bhop_terms,
     wind = jnp.where(use, obs.wind + gain * nu, obs.wind)
     var = jnp.where(use, (1.0 - gain * h_wind[2]) * p, obs.var)
     estimate, est_var = fuse(obs, measured, sensor, pred + h_wind * (wind - obs.wind),
-                             h_wind, jac, var, landing, stride_error)
+                             h_wind, jac, var, landing, stride_error, q_min)
     return obs._replace(wind=wind, var=var, pending=jnp.asarray(False), estimate=estimate,
                         est_var=est_var)
 
 
 def fuse(obs: Observer, measured, sensor, pred, h_wind, jac, wind_var, landing=0.0,
-         stride_error=None):
+         stride_error=None, q_min=Q_MIN):
     """`(estimate, covariance)` of the apex: the prediction `pred` of the pending stride
     fused with the measurement (the Kalman gain of the linearised stride). No sensor noise,
     nothing pending or a non-finite prediction: the measurement itself. `landing`,
-    `stride_error`: as `observe`'s."""
+    `stride_error`, `q_min`: as `observe`'s."""
     r = jnp.asarray(sensor, float) ** 2 / 3.0
-    q = jnp.zeros(3).at[0].set(jnp.asarray(landing, float) ** 2 / 3.0) + Q_MIN
+    q = jnp.zeros(3).at[0].set(jnp.asarray(landing, float) ** 2 / 3.0) + q_min
     if stride_error is not None:
         q = q + jnp.asarray(stride_error, float) ** 2 / 3.0
     p = jac @ obs.est_var @ jac.T + wind_var * jnp.outer(h_wind, h_wind) + jnp.diag(q)
