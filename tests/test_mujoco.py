@@ -373,8 +373,9 @@ def test_adaptive_controller_learns_the_wind_in_mujoco():
     assert np.all(np.abs(estimates[WIND][:n] - estimates[0.0][:n] - WIND) < 0.005)
 
     # Under wind and sensor noise the apex estimate is better than the raw measurement
-    # with the stride error of the MuJoCo hopper (the default); with none (jaxhop's
-    # observer as it is, a model it takes for exact) it drifts above the true apex: the
+    # with the stride error of the MuJoCo hopper (the default), and with none too (jaxhop's
+    # observer as it is, trusting its SLIP prediction to its linearisation floor): a
+    # prediction trusted to 1e-5 drifted 0.03 m and more above the true apex, since the
     # SLIP's stride loses none of the energy the leg takes.
     def errors(stride_error):
         ctrl.stride_error = stride_error
@@ -394,5 +395,5 @@ def test_adaptive_controller_learns_the_wind_in_mujoco():
     rms = lambda e: np.sqrt(np.mean(e**2, axis=0))  # noqa: E731
     assert np.all(rms(est) < rms(meas)), (rms(est), rms(meas))  # 0.018 against 0.028
     est, meas = errors(None)
-    assert np.mean(est[:, 1]) > 0.03 and rms(est)[1] > 2 * rms(meas)[1], (est.mean(0),
-                                                                           rms(est))
+    assert abs(np.mean(est[:, 1])) < 0.01 and np.all(rms(est) < rms(meas)), (est.mean(0),
+                                                                              rms(est))
