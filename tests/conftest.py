@@ -1,9 +1,17 @@
 import os
 import tempfile
 
-import jax
+# Every program the tests compile goes into the session's compilation cache, the small
+# ones too (JAX keeps only those that took a second or more): the other workers and the
+# processes and notebook kernels the tests start, which inherit the environment, read
+# them instead of compiling each operation again.
+os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
+
+import jax  # noqa: E402 - after the setting above, which jax reads when imported
 
 jax.config.update("jax_enable_x64", True)
+jax.config.update("jax_persistent_cache_min_compile_time_secs",
+                  float(os.environ["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"]))
 
 
 def _test_cache() -> str:

@@ -19,6 +19,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from slip_programs import deadbeats
 
 import jaxhop
 from jaxhop import Hopper, build_plan, make_templates, paper_templates
@@ -27,7 +28,6 @@ from jaxhop._control.decisions import decide
 from jaxhop._core.terrain import make_terrain
 from jaxhop._execution.batches import run_batch, sweep_grid
 from jaxhop._models.flight import COLLISION, HOLE, OFF_MAP, OK
-from jaxhop._models.slip.deadbeat import deadbeat_slip
 from jaxhop._models.slip.kernels import KAPPA_HI, KAPPA_LO, RATIO_HI, RATIO_LO
 from jaxhop._models.slip.stride import slip_apex_map, slip_stride
 from jaxhop.reference import _slip as RS
@@ -43,8 +43,6 @@ R_TERRAIN = R.Terrain.from_blocks(BLOCKS)
 
 stride_batch = jax.jit(jax.vmap(slip_stride, (0, 0, None, None, 0)))
 apex_map_batch = jax.jit(jax.vmap(slip_apex_map, (0, 0, 0, None)))
-deadbeat_batch = jax.jit(jax.vmap(lambda a, g, h: deadbeat_slip(a, g, h, HOP)))
-BATCH = 8
 
 
 def random_strides(seed, n):
@@ -121,17 +119,8 @@ def reachable_targets(seed, n):
     return apex[ok], np.asarray(goal)[ok], h[ok]
 
 
-def jax_deadbeat(apex, goal, h):
-    """`deadbeat_batch` on batches padded to multiples of `BATCH` (one compilation)."""
-    n = len(apex)
-    idx = np.minimum(np.arange(-(-n // BATCH) * BATCH), n - 1)
-    u, ok = deadbeat_batch(jnp.asarray(np.asarray(apex)[idx]), jnp.asarray(np.asarray(goal)[idx]),
-                           jnp.asarray(np.asarray(h)[idx]))
-    return np.asarray(u)[:n], np.asarray(ok)[:n]
-
-
 def compare_deadbeat(apex, goal, h):
-    u, ok = jax_deadbeat(apex, goal, h)
+    u, ok = deadbeats(apex, goal, h)
     for i in range(len(apex)):
         ur, okr = R.deadbeat_slip(apex[i], goal[i], h[i], RH)
         assert okr == ok[i], i
@@ -208,7 +197,7 @@ def test_slip_decisions_equal_jax():
     found, _, inst = match(jnp.asarray(states), tables)
     h = np.asarray(tables.table.centre)[np.asarray(jp.situated)[np.asarray(inst)]
                                         // jp.templates.n, 1]
-    u, _ = jax_deadbeat(states, np.asarray(jp.goals)[np.asarray(inst)], h)
+    u, _ = deadbeats(states, np.asarray(jp.goals)[np.asarray(inst)], h)
     for i, z in enumerate(states):
         f, ur, a = ctrl.decide_slip(z, n_candidates=1)
         assert f and bool(found[i]) and a == int(inst[i])
