@@ -408,7 +408,6 @@ def deadbeat_errors(method, seed, n, extra=()):
     apex, goal = reachable_targets(seed, n, extra)
     if method == "gradient":  # the default search, on the program other files share
         u, _ = deadbeats(apex, goal, np.zeros(len(apex)))
-        u = jnp.asarray(u)
     else:
         search = DeadbeatSearch(method=method)
         u, _ = jax.jit(jax.vmap(lambda a, g: deadbeat_slip(a, g, 0.0, HOP, search)))(apex, goal)
