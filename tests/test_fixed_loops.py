@@ -17,6 +17,7 @@ from jaxhop._models.slip import kernels
 from jaxhop._models.slip.stride import Tolerances
 
 HOP = jaxhop.Hopper()
+MG = float(HOP.m * HOP.g)
 
 
 def _collatz(n, limit):
@@ -134,3 +135,51 @@ def test_fixed_loops_give_the_deadbeat_of_the_while_loops():
     assert np.array_equal(ok0, ok1) and np.array_equal(code0, code1)
     np.testing.assert_allclose(u1, u0, rtol=1e-12, atol=0)
     np.testing.assert_allclose(pred1, pred0, rtol=0, atol=1e-12)
+
+
+@pytest.mark.slow
+def test_an_accelerator_observer_predicts_with_fixed_shape_strides(monkeypatch):
+    # On an accelerator the SLIP observer's apex prediction runs the decision's fixed-shape
+    # strides: no data-dependent loop in its update. Its innovations are then rounding
+    # below a floor that must still hold the fixed strides' error against the executed
+    # 1e-10 stride, or an undisturbed run would estimate a wind.
+    from jaxhop._control import observer
+    from jaxhop._control.decisions import SLIP
+    from jaxhop._models.slip.stride import STRIDE_TOL, slip_apex_map
+
+    obs = observer.observer_init()._replace(
+        apex=jnp.array([0.0, 1.3, 1.0]), u=jnp.array([0.1, 30 * MG, 30 * MG]),
+        pending=jnp.asarray(True))
+
+    def update_loops():
+        jaxpr = jax.make_jaxpr(lambda o, m: SLIP.observe(o, m, jnp.zeros(3), HOP))(
+            obs, jnp.array([0.5, 1.3, 1.0]))
+        return _while_loops(jaxpr.jaxpr)
+
+    tol, floor = observer.slip_prediction()
+    assert tol.steps == 0 and tol.rtol == STRIDE_TOL.rtol and floor == observer.NU_MIN_SLIP
+    assert update_loops() >= 2  # diffrax's adaptive solves: the walk finds them
+    monkeypatch.setattr(kernels, "decision_tol", lambda platform=None: kernels.FIXED_DECISION_TOL)
+    tol, floor = observer.slip_prediction()
+    assert tol == kernels.FIXED_DECISION_TOL and floor == observer.NU_MIN_SLIP_FIXED
+    assert update_loops() == 0
+    # Random admissible strides over flat ground: the fixed-shape prediction against the
+    # executed stride (rtol 1e-10), well inside the floor.
+    rng = np.random.default_rng(5)
+    n = 64
+    apex = np.stack([np.zeros(n), rng.uniform(1.1, 1.6, n), rng.uniform(0.3, 2.5, n)], 1)
+    u = np.stack([rng.uniform(0.0, 0.3, n), rng.uniform(15, 50, n) * MG,
+                  rng.uniform(15, 50, n) * MG], 1)
+    wind = np.where(np.arange(n) % 2 == 0, 0.0, -0.2)
+
+    def both(a, c, w):
+        exact = slip_apex_map(a, c, 0.0, HOP, STRIDE_TOL, w)
+        o = obs._replace(apex=a, u=c, h=jnp.asarray(0.0), wind=w)
+        return exact, observer.slip_terms(o, HOP)[0]
+
+    (exact, code), pred = jax.jit(jax.vmap(both))(jnp.asarray(apex), jnp.asarray(u),
+                                                   jnp.asarray(wind))
+    good = np.asarray(code) == 0
+    assert good.sum() >= 40
+    err = np.abs(np.asarray(pred) - np.asarray(exact))[good]
+    assert err.max() < observer.NU_MIN_SLIP_FIXED / 3, err.max()

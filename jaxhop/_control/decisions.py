@@ -25,7 +25,7 @@ from .._planning.plan import PlanTables
 from .._planning.policies import candidate_situated
 from .._planning.regions import foot_lead
 from .foothold import mapped_height
-from .observer import NU_MIN_SLIP, Q_MIN_SLIP, Observer, observe, slip_terms
+from .observer import Q_MIN_SLIP, Observer, observe, slip_prediction, slip_terms
 
 
 def bhop_stride(apex, u, terrain: Terrain, hopper: Hopper, wind=0.0):
@@ -482,8 +482,9 @@ class _Slip(Model):
         return hopper.rho0 * jnp.stack([jnp.sin(u[0]), -jnp.cos(u[0])])
 
     def observe(self, obs, measured, sensor, hopper, landing=0.0, stride_error=None):
-        return observe(obs, measured, sensor, hopper, slip_terms, NU_MIN_SLIP, landing,
-                       stride_error, Q_MIN_SLIP)
+        tol, nu_min = slip_prediction()
+        return observe(obs, measured, sensor, hopper, lambda o, h: slip_terms(o, h, tol),
+                       nu_min, landing, stride_error, Q_MIN_SLIP)
 
 
 # SLIP strides cost a deadbeat solve per lane and run lengths vary more (a vmapped while loop

@@ -62,6 +62,10 @@ Q_MIN_SLIP = 4e-4
 #: from a touchdown computed in closed form rather than on the terrain.
 NU_MIN = 1e-9
 NU_MIN_SLIP = 1e-7
+#: The SLIP's floor where its prediction is a fixed-shape stride (`slip_prediction`): ten
+#: times the largest apex error of those strides against the 1e-10 stride (3.0e-6 on 2 000
+#: random strides, docs/slip.md, "Fixed-shape trial strides").
+NU_MIN_SLIP_FIXED = 3e-5
 
 
 class Observer(NamedTuple):
@@ -96,12 +100,28 @@ def bhop_terms(obs: Observer, hopper: Hopper):
     return pred, h_wind, jax.jacfwd(lambda z: f(obs.wind, z))(obs.apex)
 
 
-def slip_terms(obs: Observer, hopper: Hopper):
-    """`bhop_terms` for the SLIP stride: its apex map (with the stance's target energy where
-    the stride used one), both derivatives in one forward-mode pass through diffrax."""
-    from .._models.slip.stride import STRIDE_TOL, slip_apex_map
+def slip_prediction():
+    """The strides of the SLIP's apex prediction and the floor of its innovations, as the
+    decision's platform gives them (`jaxhop._models.slip.kernels.decision_tol`): on a CPU
+    the executed stride's 1e-10 solve and `NU_MIN_SLIP`; elsewhere the decision's
+    fixed-shape strides and `NU_MIN_SLIP_FIXED`, so that no turn of a data-dependent loop
+    waits for the host there (docs/slip.md, "Fixed-shape trial strides")."""
+    from .._models.slip.kernels import decision_tol
+    from .._models.slip.stride import STRIDE_TOL
 
-    tol = STRIDE_TOL.forward()
+    tol = decision_tol()
+    if tol.steps:
+        return tol, NU_MIN_SLIP_FIXED
+    return STRIDE_TOL.forward(), NU_MIN_SLIP
+
+
+def slip_terms(obs: Observer, hopper: Hopper, tol=None):
+    """`bhop_terms` for the SLIP stride: its apex map (with the stance's target energy where
+    the stride used one), both derivatives in one forward-mode pass through the stance.
+    `tol`: its strides (default `slip_prediction`'s)."""
+    from .._models.slip.stride import slip_apex_map
+
+    tol = slip_prediction()[0] if tol is None else tol
 
     def f(x):
         nxt, _ = slip_apex_map(x[1:], obs.u, obs.h, hopper, tol, x[0], obs.energy)
