@@ -17,15 +17,16 @@ HOP = Hopper()
 #: Lanes per call: batches are padded to a multiple of it (one compiled shape).
 BATCH = 8
 
-_deadbeat_batch = jax.jit(jax.vmap(lambda a, g, h: deadbeat_slip(a, g, h, HOP)))
+_deadbeat_batch = jax.jit(jax.vmap(lambda a, g, h, w: deadbeat_slip(a, g, h, HOP, wind=w)))
 
 
-def deadbeats(apex, goal, h):
+def deadbeats(apex, goal, h, wind=0.0):
     """`deadbeat_slip` (the default search, the default hopper) for each row of `apex`,
-    `goal` over a foothold at `h` (one per row), in batches padded to multiples of
-    `BATCH`: the controls and the solver's flags, as NumPy arrays."""
+    `goal` over a foothold at `h` (one per row) in a horizontal flight acceleration `wind`
+    (one per row or one for all; traced, so every wind shares the program), in batches
+    padded to multiples of `BATCH`: the controls and the solver's flags, as NumPy arrays."""
     n = len(apex)
     idx = np.minimum(np.arange(-(-n // BATCH) * BATCH), n - 1)
-    u, ok = _deadbeat_batch(jnp.asarray(np.asarray(apex)[idx]),
-                            jnp.asarray(np.asarray(goal)[idx]), jnp.asarray(np.asarray(h)[idx]))
+    wind = np.broadcast_to(np.asarray(wind, float), (n,))
+    u, ok = _deadbeat_batch(*(jnp.asarray(np.asarray(x)[idx]) for x in (apex, goal, h, wind)))
     return np.asarray(u)[:n], np.asarray(ok)[:n]

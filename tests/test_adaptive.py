@@ -5,6 +5,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from slip_programs import deadbeats
 
 import jaxhop
 from jaxhop._control.decisions import (
@@ -174,22 +175,19 @@ def _slip_targets(wind, n, seed):
 
 @pytest.mark.slow
 def test_slip_adaptive_deadbeat_reaches_the_goal_in_the_wind():
-    from jaxhop._models.slip.deadbeat import deadbeat_slip
     from jaxhop._models.slip.stride import slip_stride
 
     wind = 0.3
     apex, goal, _, fly = _slip_targets(wind, 3, 3)
-    solve = jax.jit(jax.vmap(lambda a, g, w: deadbeat_slip(a, g, 0.0, HOP, wind=w),
-                             (0, 0, None)))
-    u, ok = solve(apex, goal, wind)
-    assert np.all(np.asarray(ok))
+    u, ok = deadbeats(apex, goal, np.zeros(len(apex)), wind)
+    assert np.all(ok)
     # The executed stride on a floor, flown in the same wind, ends on the goal.
     nxt, code, _ = jax.vmap(lambda a, c: slip_stride(a, c, FLOOR, HOP, wind))(apex, u)
     assert np.all(np.asarray(code) == OK)
     assert np.max(np.abs(np.asarray(nxt - goal))) < 1e-4
     # Its wind-blind controls (the same solver at wind 0) miss by about the wind's
     # effect over a flight: more than 0.05 m or m/s.
-    blind, _ = solve(apex, goal, 0.0)
+    blind, _ = deadbeats(apex, goal, np.zeros(len(apex)), 0.0)
     missed, _ = fly(apex, blind, wind)
     assert np.all(np.max(np.abs(np.asarray(missed - goal)), axis=1) > 0.05)
 
