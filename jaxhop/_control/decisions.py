@@ -482,9 +482,8 @@ class _Slip(Model):
         return hopper.rho0 * jnp.stack([jnp.sin(u[0]), -jnp.cos(u[0])])
 
     def observe(self, obs, measured, sensor, hopper, landing=0.0, stride_error=None):
-        tol, nu_min = slip_prediction()
-        return observe(obs, measured, sensor, hopper, lambda o, h: slip_terms(o, h, tol),
-                       nu_min, landing, stride_error, Q_MIN_SLIP)
+        return observe(obs, measured, sensor, hopper, slip_terms, slip_prediction()[1],
+                       landing, stride_error, Q_MIN_SLIP)
 
 
 # SLIP strides cost a deadbeat solve per lane and run lengths vary more (a vmapped while loop

@@ -115,13 +115,13 @@ def slip_prediction():
     return STRIDE_TOL.forward(), NU_MIN_SLIP
 
 
-def slip_terms(obs: Observer, hopper: Hopper, tol=None):
+def slip_terms(obs: Observer, hopper: Hopper):
     """`bhop_terms` for the SLIP stride: its apex map (with the stance's target energy where
-    the stride used one), both derivatives in one forward-mode pass through the stance.
-    `tol`: its strides (default `slip_prediction`'s)."""
+    the stride used one) on `slip_prediction`'s strides, both derivatives in one
+    forward-mode pass through the stance."""
     from .._models.slip.stride import slip_apex_map
 
-    tol = slip_prediction()[0] if tol is None else tol
+    tol = slip_prediction()[0]
 
     def f(x):
         nxt, _ = slip_apex_map(x[1:], obs.u, obs.h, hopper, tol, x[0], obs.energy)
