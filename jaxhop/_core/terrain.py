@@ -101,6 +101,11 @@ class Terrain(eqx.Module):
         """The same map with other block heights (a perceived, noisy map)."""
         return Terrain(self.starts, self.ends, jnp.asarray(heights, float), self.name, self.goal)
 
+    def unnamed(self) -> Terrain:
+        """The same blocks without the name and goal, which are static fields: a jitted
+        program keyed by them would be compiled again for every map of the same shape."""
+        return Terrain(self.starts, self.ends, self.heights)
+
     def to_dict(self) -> dict:
         out = {
             "name": self.name,

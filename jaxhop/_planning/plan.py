@@ -89,11 +89,9 @@ def bucketed(tables: PlanTables, true_terrain: Terrain) -> tuple[PlanTables, Ter
     ns = bucket(tables.table.seg_block.shape[0], 64)
     ni = pow2_at_least(tables.goals.shape[0])
     tables = tables.padded(nb, ns, ni)
-    # The maps' names are static fields: a program keyed by them would not be shared.
-    unnamed = [Terrain(t.starts, t.ends, t.heights)
-               for t in (tables.terrain, pad_terrain(true_terrain, nb))]
-    return dataclasses.replace(tables, terrain=unnamed[0],
-                               templates=tables.templates.for_runs()), unnamed[1]
+    return (dataclasses.replace(tables, terrain=tables.terrain.unnamed(),
+                                templates=tables.templates.for_runs()),
+            pad_terrain(true_terrain, nb).unnamed())
 
 
 @dataclasses.dataclass

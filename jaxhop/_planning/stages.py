@@ -211,7 +211,7 @@ class Layout:
                            np.zeros(self.n_sit)], 1)
         self.gf_world = gf_rel[self.t_of] + offset[:, :, None]
         self.d_world = d_rel[self.t_of] + offset[:, :, None]
-        self.jtable, self.jterrain = self.table, terrain
+        self.jtable, self.jterrain = self.table, terrain.unnamed()
         self.jallowed = jnp.ones(self.n_sit, bool)
 
     def limits(self, grid):

@@ -143,7 +143,7 @@ class _Context(S.Layout, Reach):
         terrain, t = self.terrain, self.table
         nb = bucket(terrain.n_blocks + 1, 32)
         ns = bucket(self.n_seg + 1, 128)
-        self.jterrain = pad_terrain(terrain, nb)
+        self.jterrain = pad_terrain(terrain, nb).unnamed()
         self.jtable = SituatedTable(
             pad_to(t.centre, ns, [1e6, 0.0]), pad_to(t.seg_block, ns, terrain.n_blocks - 1),
             pad_to(t.edge_distance, ns, 0.0), pad_to(t.block_first, nb, self.n_seg),
