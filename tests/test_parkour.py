@@ -383,13 +383,9 @@ def test_update_dependency_tests_are_sufficient(align, model):
     rng = np.random.default_rng(0)
     pick = rng.choice(np.nonzero(~binds)[0], min(1500, int((~binds).sum())), replace=False)
 
+    # The update's own stages (its programs, compiled once for the course builds too).
     def goals(ctx, r, c):
-        box = S.overlap(ctx.gf_world[r, 1:], ctx.d_world[c, 1:])
-        def pairs(*a):
-            return S.pairs_jit(*a, ctx.jtable, tm, ctx.jterrain, hop, None, None, GRID)
-
-        return B._padded(pairs, r.size, S.PAIR_CHUNK, ctx.t_of[r], ctx.s_of[r], ctx.t_of[c],
-                         ctx.s_of[c], box, small=True)
+        return S.instantiate(ctx, ctx.pair_args(r, c), GRID)
 
     f1, g1, m1, d1 = goals(new, rows[pick], cols[pick])
     f0, g0, m0, d0 = goals(old, new_to_old[rows[pick]], new_to_old[cols[pick]])
@@ -409,8 +405,7 @@ def test_update_dependency_tests_are_sufficient(align, model):
     assert np.all(new.touched(apex, landing, new.probe) >= ~untouched)
 
     def rows_of(ctx, a):
-        return B._padded(lambda g: S.rows_jit(g, ctx.jallowed, ctx.jtable, tm, ctx.jterrain,
-                                               hop), a.shape[0], S.ROW_CHUNK, a, small=True)
+        return S.prepares_rows(ctx, a)
 
     ids1, in1 = rows_of(new, apex[untouched])
     ids0, in0 = rows_of(old, apex[untouched])

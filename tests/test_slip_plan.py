@@ -307,7 +307,11 @@ def _premise_programs():
     deadbeat = jax.jit(lambda a, g, h, table, terrain, w: deadbeat_slip(
         a, g, h, HOPPER, DeadbeatSearch(table=table, fallback=False), terrain=terrain, wind=w))
     stride = jax.jit(lambda a, u, terrain, w, tol: slip_stride(a, u, terrain, HOPPER, w, tol))
-    return deadbeat, stride
+    # The foothold height and the wind as float64 arrays whatever the caller passes: JAX
+    # picks the program by the arguments' types, and a Python float is weakly typed.
+    real = functools.partial(jnp.asarray, dtype=jnp.float64)
+    return (lambda a, g, h, table, terrain, w: deadbeat(a, g, real(h), table, terrain, real(w)),
+            lambda a, u, terrain, w, tol: stride(a, u, terrain, real(w), tol))
 
 
 def _run_tables(tables):
