@@ -183,10 +183,7 @@ def _course_step(apex, code, key, k, world: World, config: RunConfig, control: C
     running = code == Result.RUNNING
     stepping = running & s.stepping
     control = jax.tree.map(lambda new, old: jnp.where(running, new, old), s.control, control)
-    # The code keeps the caller's int32: a result of another type would select another
-    # compiled step for the next stride.
-    return (jnp.where(running & s.ok, s.next_apex, apex),
-            jnp.where(running, s.code, code).astype(code.dtype),
+    return (jnp.where(running & s.ok, s.next_apex, apex), jnp.where(running, s.code, code),
             jnp.where(stepping, s.foothold, jnp.nan), jnp.where(stepping, s.policy, -1),
             stepping, control)
 
@@ -215,6 +212,8 @@ def _step_batch(apex, code, keys, k, tables, true_terrain, forb, goal, tol, dist
     control)`; `control` defaults to fresh runs' controller states."""
     if control is None:
         control = jax.vmap(lambda _: control_init())(jnp.arange(apex.shape[0]))
+    # Codes as int32 whatever the caller passes (the step returns int64): a code of another
+    # type would select another compiled step for the next stride.
     return _step_vmap(apex, jnp.asarray(code, jnp.int32), keys, k, tables, true_terrain, forb,
                       goal, tol, dist, hopper, model, control, controller)
 
