@@ -59,15 +59,24 @@ jax.devices()
 # ones fill the end, so the workers finish together. Files not named follow in their
 # collection order.
 SLOWEST_FIRST = [
-    "test_parkour.py", "test_slip_plan.py", "test_notebooks.py", "test_slip.py",
-    "test_slip_table.py", "test_reference.py", "test_adaptive.py", "test_plan.py",
-    "test_regions.py", "test_reference_slip.py", "test_mppc_disturbed.py", "test_devices.py",
-    "test_checkpoint.py", "test_fixed_loops.py", "test_repro.py", "test_cli.py",
-    "test_parkour_recovery.py", "test_properties.py", "test_pool.py", "test_explore.py",
-    "test_parkour_notebook.py",
-    "test_api.py", "test_foothold.py", "test_distributed.py", "test_malformed.py",
-    "test_goals.py", "test_mppc_plan.py", "test_mujoco.py",
+    "test_parkour.py", "test_slip_plan.py", "test_slip.py", "test_slip_table.py",
+    "test_notebooks.py", "test_reference.py", "test_reference_slip.py", "test_adaptive.py",
+    "test_plan.py", "test_mppc_disturbed.py", "test_regions.py", "test_checkpoint.py",
+    "test_devices.py", "test_parkour_recovery.py", "test_properties.py", "test_fixed_loops.py",
+    "test_explore.py", "test_mppc_plan.py", "test_malformed.py", "test_cli.py",
+    "test_foothold.py", "test_api.py", "test_goals.py", "test_mujoco.py", "test_flight.py",
+    "test_repro.py", "test_pool.py", "test_plot.py", "test_distributed.py",
 ]
+
+
+def pytest_xdist_auto_num_workers(config):
+    """`-n auto`: one worker more than there are cores (`--maxprocesses` caps it). Most of a
+    test's time is tracing and compiling, on one core each, and a worker also waits for
+    the processes and notebook kernels its tests start: a third worker keeps 2 cores busy
+    (docs/development.md, "Tests")."""
+    cores = (len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
+             else os.cpu_count() or 1)
+    return cores + 1
 
 
 def pytest_collection_modifyitems(config, items):
