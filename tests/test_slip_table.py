@@ -14,8 +14,10 @@ import pytest
 
 from jaxhop import Hopper
 from jaxhop import reference as R
-from jaxhop._models.slip.kernels import KAPPA_HI, KAPPA_LO
-from jaxhop._models.slip.stride import slip_apex_map
+from jaxhop._core.batching import pad_terrain
+from jaxhop._models.slip.deadbeat import DeadbeatSearch, deadbeat_slip
+from jaxhop._models.slip.kernels import KAPPA_HI, KAPPA_LO, SEARCH_TOL
+from jaxhop._models.slip.stride import slip_apex_map, slip_stride
 from jaxhop._models.slip.table import (
     DEFAULT_GRID,
     TableGrid,
@@ -27,11 +29,32 @@ from jaxhop._models.slip.table import (
 from jaxhop.reference import _slip as RS
 
 HOP = Hopper()
+#: Maps are padded to this many blocks (`reference`'s), so that one program serves them all.
+BLOCKS = 8
 
 
 @pytest.fixture(scope="module")
 def table():
     return slip_table(progress=False)
+
+
+@jax.jit
+def _solve_and_stride(apex, goal, h, table, terrain, wind):
+    search = DeadbeatSearch(table=table, fallback=False, accept=1e-4)
+    u, ok, pred, code = deadbeat_slip(apex, goal, h, HOP, search, terrain=terrain, wind=wind,
+                                      predict=True)
+    ref, ref_code, _ = slip_stride(apex, u, terrain, HOP, wind, SEARCH_TOL)
+    return u, ok, pred, code, ref, ref_code
+
+
+def solve_and_stride(apex, goal, h, table, terrain, wind=0.0):
+    """A decision's deadbeat over `terrain` (table starts only, accepting C2 <= 1e-4) with
+    its predicted stride, and `slip_stride` with its controls: `(u, ok, pred, code, ref,
+    ref_code)`. One compiled program for every test here (the map padded to `BLOCKS`
+    blocks, the arguments float64 arrays)."""
+    real = lambda x: jnp.asarray(x, jnp.float64)  # noqa: E731
+    return _solve_and_stride(real(apex), real(goal), real(h), table,
+                             pad_terrain(terrain, BLOCKS).unnamed(), real(wind))
 
 
 @pytest.mark.slow
@@ -166,16 +189,13 @@ def test_no_table_start_still_reaches_the_goal(table):
     without the fallback, the solve's controls (the flat-ground starts' longer polish)
     reach the goal on the twin's stride (solve_ivp) over the same map within 1 mm."""
     from jaxhop import builtin_terrain
-    from jaxhop._models.slip.deadbeat import DeadbeatSearch, deadbeat_slip
 
     terrain = builtin_terrain("reference")
     apex = jnp.array([8.25, 1.5, 0.5])
     goal = jnp.array([8.76673, 1.43491, 1.08242])
     _, errs = table_starts(table, apex, goal, 0.35, HOP, 3, terrain)
     assert not np.any(np.isfinite(np.asarray(errs)))
-    search = DeadbeatSearch(table=table, fallback=False, accept=1e-4)
-    u, ok = jax.jit(lambda a, g: deadbeat_slip(a, g, 0.35, HOP, search, terrain=terrain))(
-        apex, goal)
+    u, ok, *_ = solve_and_stride(apex, goal, 0.35, table, terrain)
     assert bool(ok)
     twin_terrain = R.Terrain.from_blocks(terrain.blocks())
     nxt, code, _ = RS.slip_stride(np.asarray(apex), np.asarray(u), twin_terrain, R.Hopper())
@@ -191,9 +211,6 @@ def test_predicted_stride_is_the_stride_of_the_controls(table):
     not, with and without wind, next to a tall block that some strides sweep over."""
     from jaxhop._core.terrain import make_terrain
     from jaxhop._models.flight import OK
-    from jaxhop._models.slip.deadbeat import DeadbeatSearch, deadbeat_slip
-    from jaxhop._models.slip.kernels import SEARCH_TOL
-    from jaxhop._models.slip.stride import slip_stride
 
     terrain = make_terrain([(-4.0, 1.1, 0.0), (1.1, 1.3, 0.8), (1.3, 5.0, 0.0)])
     rng = np.random.default_rng(7)
@@ -204,15 +221,9 @@ def test_predicted_stride_is_the_stride_of_the_controls(table):
                      rng.uniform(-0.5, 3.0, n)], axis=1)
     wind = np.where(np.arange(n) % 2 == 0, 0.0, rng.uniform(-0.5, 0.5, n))
 
-    def both(a, g, w):
-        search = DeadbeatSearch(table=table, fallback=False, accept=1e-4)
-        u, ok, pred, code = deadbeat_slip(a, g, 0.0, HOP, search, terrain=terrain, wind=w,
-                                          predict=True)
-        ref, ref_code, _ = slip_stride(a, u, terrain, HOP, w, SEARCH_TOL)
-        return ok, pred, code, ref, ref_code
-
-    ok, pred, code, ref, ref_code = (np.asarray(x) for x in jax.jit(jax.vmap(both))(
-        jnp.asarray(apex), jnp.asarray(goal), jnp.asarray(wind)))
+    out = [solve_and_stride(apex[i], goal[i], 0.0, table, terrain, wind[i]) for i in range(n)]
+    ok, pred, code, ref, ref_code = (np.stack([np.asarray(o[k]) for o in out])
+                                     for k in range(1, 6))
     np.testing.assert_array_equal(code == OK, ref_code == OK)
     good = ref_code == OK
     np.testing.assert_allclose(pred[good], ref[good], rtol=0, atol=1e-12)
