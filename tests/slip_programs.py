@@ -17,36 +17,15 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxhop._core.params import Hopper
+from jaxhop._core.paths import cache_dir, file_lock
 from jaxhop._models.slip.deadbeat import deadbeat_slip
 
 HOP = Hopper()
 #: Lanes per call: batches are padded to a multiple of it (one compiled shape).
 BATCH = 8
 
+#: Batch shapes this process has run (compiled or read from the cache).
 _seen: set = set()
-
-
-@contextlib.contextmanager
-def _first_call(shape):
-    """Hold the session's program lock while a shape of this process runs the first time."""
-    if shape in _seen:
-        yield
-        return
-    try:
-        import fcntl
-    except ImportError:  # no POSIX locks: each process compiles its own
-        fcntl = None
-    path = os.path.join(os.environ.get("JAXHOP_CACHE", "."), "slip-programs.lock")
-    with open(path, "a") as f:
-        if fcntl is not None:
-            fcntl.flock(f, fcntl.LOCK_EX)
-        try:
-            yield
-        finally:
-            _seen.add(shape)
-            if fcntl is not None:
-                fcntl.flock(f, fcntl.LOCK_UN)
-
 
 _deadbeat_batch = jax.jit(jax.vmap(lambda a, g, h, w: deadbeat_slip(a, g, h, HOP, wind=w)))
 
@@ -59,7 +38,9 @@ def deadbeats(apex, goal, h, wind=0.0):
     n = len(apex)
     idx = np.minimum(np.arange(-(-n // BATCH) * BATCH), n - 1)
     wind = np.broadcast_to(np.asarray(wind, float), (n,))
-    with _first_call(len(idx)):
-        u, ok = jax.block_until_ready(_deadbeat_batch(
-            *(jnp.asarray(np.asarray(x)[idx]) for x in (apex, goal, h, wind))))
+    lock = (file_lock(os.path.join(cache_dir(), "slip-programs.lock")) if len(idx) not in _seen
+            else contextlib.nullcontext())
+    with lock:
+        u, ok = _deadbeat_batch(*(jnp.asarray(np.asarray(x)[idx]) for x in (apex, goal, h, wind)))
+    _seen.add(len(idx))
     return np.asarray(u)[:n], np.asarray(ok)[:n]

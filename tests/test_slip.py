@@ -452,10 +452,10 @@ def test_gradient_solver_never_tries_a_non_finite_point(monkeypatch):
     monkeypatch.setattr(D, "_residual", recording)
     apex = jnp.array([9.085155396247906, 1.2430493059720336, -1.9875529588897811])
     goal = jnp.array([8.725000000000001, 1.1175037200259623, 1.5992968749999998])
+    terrain = builtin_terrain("reference")
     starts = jnp.array([[0.0, 0.5], [-0.6, 0.5]])
     th, kc, c2 = jax.jit(lambda a, g, t, p: D.deadbeat_gradient(
-        a, g, 0.0, HOP, D.SEARCH_TOL, terrain=t, starts=p))(
-        apex, goal, builtin_terrain("reference"), starts)
+        a, g, 0.0, HOP, D.SEARCH_TOL, terrain=t, starts=p))(apex, goal, terrain, starts)
     jax.effects_barrier()
     seen = np.stack(seen).reshape(-1, 2)
     assert len(seen) > 20
@@ -463,7 +463,7 @@ def test_gradient_solver_never_tries_a_non_finite_point(monkeypatch):
     assert np.all(np.isfinite([float(th), float(kc), float(c2)]))
     # The failing start was priced, and its stride failed.
     assert np.any(np.all(seen == np.asarray(starts[0]), axis=1))
-    r = residual(starts[0], apex, goal, 0.0, HOP, D.SEARCH_TOL, builtin_terrain("reference"))
+    r = residual(starts[0], apex, goal, 0.0, HOP, D.SEARCH_TOL, terrain)
     assert np.all(np.asarray(r) == 1e3)
     # A non-finite point itself counts as a failed stride, not as NaN.
     r = residual(jnp.array([jnp.nan, 0.5]), apex, goal, 0.0, HOP, D.SEARCH_TOL)

@@ -1,5 +1,6 @@
 """Where jaxhop keeps what it computes once: plans, the SLIP table, compiled programs."""
 
+import contextlib
 import os
 
 
@@ -20,3 +21,17 @@ def cache_dir() -> str:
     """`$JAXHOP_CACHE`, default `~/.cache/jaxhop`."""
     return os.environ.get("JAXHOP_CACHE", os.path.join(os.path.expanduser("~"), ".cache",
                                                        "jaxhop"))
+
+
+@contextlib.contextmanager
+def file_lock(path: str):
+    """An exclusive lock on `path` across processes (POSIX `flock`; none elsewhere), so
+    that processes sharing a cache build what it holds once."""
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - not POSIX
+        yield
+        return
+    with open(path, "a") as f:
+        fcntl.flock(f, fcntl.LOCK_EX)
+        yield  # closing the file releases the lock

@@ -22,7 +22,6 @@ by its grid, the search tolerances and the package version (`docs/slip.md`, "Dea
 
 from __future__ import annotations
 
-import contextlib
 import functools
 import hashlib
 import json
@@ -36,7 +35,7 @@ import numpy as np
 
 from ..._core.batching import bounded_while, run_once
 from ..._core.params import Hopper
-from ..._core.paths import atomic_write, cache_dir
+from ..._core.paths import atomic_write, cache_dir, file_lock
 from ..._core.programs import jit
 from ..._core.version import VERSION
 from .kernels import (
@@ -143,20 +142,6 @@ def _read(path: str, key: str, shape: tuple):
     return None
 
 
-@contextlib.contextmanager
-def _file_lock(path: str):
-    """An exclusive lock on `path` across processes (POSIX `flock`; none elsewhere), so
-    that processes sharing a cache build the table once."""
-    try:
-        import fcntl
-    except ImportError:  # pragma: no cover - not POSIX
-        yield
-        return
-    with open(path, "a") as f:
-        fcntl.flock(f, fcntl.LOCK_EX)
-        yield  # closing the file releases the lock
-
-
 def slip_table(grid: TableGrid = DEFAULT_GRID, cache: bool = True,
                progress: bool = True) -> SlipTable:
     """The SLIP table on `grid`: from memory, from the disk cache, or built (and cached).
@@ -177,7 +162,7 @@ def slip_table(grid: TableGrid = DEFAULT_GRID, cache: bool = True,
             path = os.path.join(cache_dir(), f"slip-table-{key}.npz")
             values = _read(path, key, shape)
             if values is None:
-                with _file_lock(path + ".lock"):
+                with file_lock(path + ".lock"):
                     values = _read(path, key, shape)  # another process may have built it
                     if values is None:
                         values = build_table(grid, progress=progress)
