@@ -14,7 +14,10 @@ Importing jaxhop sets three things, because every number it computes depends on 
   "Errors inside solves");
 - JAX's compilation cache directory, unless one is set already: `$JAXHOP_CACHE/xla`
   (default `~/.cache/jaxhop/xla`), so a second process loads compiled programs instead of
-  compiling them again.
+  compiling them again; there it keeps every program, the small ones too (JAX keeps only
+  those that took a second to compile, unless `JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS`
+  says otherwise), where a warm SLIP sweep would compile about 50 small ones again in
+  every process, 1.5-2 s (`docs/development.md`, "Compilation").
 
 Its programs compile with `COMPILER_OPTIONS` (`jaxhop.jit`: `jax.jit` with them), which
 spare the SLIP model's nested solver loops most of their compilation time
@@ -95,3 +98,5 @@ from ._viz.explore import explore_stride as explore_stride
 
 if _jax.config.jax_compilation_cache_dir is None:
     _jax.config.update("jax_compilation_cache_dir", _os.path.join(cache_dir(), "xla"))
+    if "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS" not in _os.environ:
+        _jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)

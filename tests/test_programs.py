@@ -160,3 +160,35 @@ def test_every_run_setting_has_the_same_argument_types():
               disturbance_for("wind+sensor+landing")]
     assert all(types(d) == types(worlds[0]) for d in worlds)
     assert float(worlds[2].wind) == -0.2 and worlds[0].sensor.shape == (3,)
+
+
+def test_importing_jaxhop_caches_small_programs_only_in_its_own_cache(tmp_path):
+    """jaxhop's own compilation cache keeps every program (JAX's default: those that took a
+    second); a cache directory or a minimum the user set is left as it is."""
+    import os
+    import subprocess
+    import sys
+
+    probe = ("import jax, jaxhop; c = jax.config; "
+             "print(c.jax_compilation_cache_dir, c.jax_persistent_cache_min_compile_time_secs)")
+    env = {k: v for k, v in os.environ.items()
+           if k not in ("JAX_COMPILATION_CACHE_DIR", "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS")}
+    env["JAXHOP_CACHE"] = str(tmp_path / "own")
+    cases = {
+        "own": env,
+        "user dir": {**env, "JAX_COMPILATION_CACHE_DIR": str(tmp_path / "user")},
+        "user minimum": {**env, "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "2.5"},
+    }
+    procs = {name: subprocess.Popen([sys.executable, "-c", probe], env=e, text=True,
+                                    stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+             for name, e in cases.items()}
+    out = {}
+    for name, proc in procs.items():
+        stdout, stderr = proc.communicate(timeout=120)
+        assert proc.returncode == 0, stderr
+        folder, minimum = stdout.split()
+        out[name] = (folder, float(minimum))
+    assert out["own"] == (str(tmp_path / "own" / "xla"), 0.0)
+    assert out["user dir"][0] == str(tmp_path / "user")
+    assert out["user dir"][1] == 1.0  # JAX's own default, untouched
+    assert out["user minimum"] == (str(tmp_path / "own" / "xla"), 2.5)
