@@ -14,10 +14,9 @@ Importing jaxhop sets three things, because every number it computes depends on 
   "Errors inside solves");
 - JAX's compilation cache directory, unless one is set already: `$JAXHOP_CACHE/xla`
   (default `~/.cache/jaxhop/xla`), so a second process loads compiled programs instead of
-  compiling them again; there it keeps every program, the small ones too (JAX keeps only
-  those that took a second to compile, unless `JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS`
-  says otherwise), where a warm SLIP sweep would compile about 50 small ones again in
-  every process, 1.5-2 s (`docs/development.md`, "Compilation").
+  compiling them again. That cache keeps every program, the small ones too, unless
+  `JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS` is set (JAX alone keeps only those that
+  took a second to compile; `docs/development.md`, "Compilation").
 
 Its programs compile with `COMPILER_OPTIONS` (`jaxhop.jit`: `jax.jit` with them), which
 spare the SLIP model's nested solver loops most of their compilation time

@@ -1,6 +1,10 @@
 """Programs kept on disk (`jaxhop._core.programs`): loaded instead of traced, keyed by what they
 were traced from, and never trusted when unreadable."""
 
+import os
+import subprocess
+import sys
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -165,10 +169,6 @@ def test_every_run_setting_has_the_same_argument_types():
 def test_importing_jaxhop_caches_small_programs_only_in_its_own_cache(tmp_path):
     """jaxhop's own compilation cache keeps every program (JAX's default: those that took a
     second); a cache directory or a minimum the user set is left as it is."""
-    import os
-    import subprocess
-    import sys
-
     probe = ("import jax, jaxhop; c = jax.config; "
              "print(c.jax_compilation_cache_dir, c.jax_persistent_cache_min_compile_time_secs)")
     env = {k: v for k, v in os.environ.items()
