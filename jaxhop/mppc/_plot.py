@@ -1,10 +1,13 @@
-"""Figure of a parkour run: course, executed jumps and the plans behind them."""
+"""Figure of a parkour run: course, executed jumps and the plans behind them.
+
+matplotlib is imported when a figure is drawn, not with `jaxhop.mppc`: the command line
+imports the MPPC modules for its `parkour` options, and matplotlib took half a second of
+every `jaxhop` command's start.
+"""
 
 import math
 
 import numpy as np
-from matplotlib.figure import Figure
-from matplotlib.patches import Rectangle
 
 from ._course import Course
 from ._robot import Robot
@@ -34,6 +37,9 @@ def plot_run(course: Course, result, robot: Robot | None = None, replan: int | N
 
     **Returns:** a `matplotlib.figure.Figure`.
     """
+    from matplotlib.figure import Figure
+    from matplotlib.patches import Rectangle
+
     robot = robot or Robot()
     fig = Figure(figsize=(12, 3.6))
     ax = fig.add_subplot()
