@@ -45,12 +45,18 @@ SAFETY_WE = 0.5
 SAFETY_WG = 1.0
 #: Half-width (m, m, m/s) of the safety-sampling box around each goal, 1 m hopper.
 PROBE_HALF_WIDTH = 0.2
-#: Chunk sizes: pairs instantiated, pairs screened (cheap: 4x), rows of `P`, probes.
-PAIR_CHUNK = 4096
+#: Chunk sizes: pairs instantiated, pairs screened (cheap: 4x), rows of `P`, probes. On
+#: a CPU smaller chunks do less work: with 1 024 pairs and 2 048 rows `reference` builds
+#: in 1.6-1.7 CPU seconds against 2.3-2.5 with 4 096 and 8 192, the plan bit for bit the
+#: same (docs/planning.md, "Chunks that fit the caches").
+PAIR_CHUNK = 1024
 SCREEN_CHUNK = 4 * PAIR_CHUNK
-ROW_CHUNK = 8192
+ROW_CHUNK = 2048
 PROBE_CHUNK = 65536
 GOAL_CHUNK = 1024
+#: On a GPU or TPU the pair, screen and row chunks are this many times larger (a batch
+#: costs there about what its longest lane costs).
+ACCELERATOR_CHUNK_SCALE = 4
 
 
 # --- one sample, vmapped at the edge ------------------------------------------------------
@@ -228,11 +234,14 @@ class Layout:
         boxes = overlap(self.gf_world[rows, 1:], self.d_world[cols, 1:])
         return self.t_of[rows], self.s_of[rows], self.t_of[cols], self.s_of[cols], boxes
 
-    def map(self, fn, n, chunk, batched, consts=(), bar=None):
-        """`chunked_map` with this layout's chunk sizes, on `plan_devices()`."""
+    def map(self, fn, n, chunk, batched, consts=(), bar=None, scaled=False):
+        """`chunked_map` with this layout's chunk sizes, on `plan_devices()`. `scaled`:
+        `chunk` is a CPU's, `ACCELERATOR_CHUNK_SCALE` times larger on an accelerator."""
+        devices = plan_devices()
+        if scaled and devices[0].platform != "cpu":
+            chunk *= ACCELERATOR_CHUNK_SCALE
         size, tail = chunk_sizes(chunk, n, self.chunking)
-        return chunked_map(fn, n, size, batched, consts, tail=tail, bar=bar,
-                           devices=plan_devices())
+        return chunked_map(fn, n, size, batched, consts, tail=tail, bar=bar, devices=devices)
 
 
 def plan_devices():
@@ -256,7 +265,7 @@ def screen(lay: Layout, args, grid) -> np.ndarray:
     if n == 0:
         return np.zeros(0, bool)
     return lay.map(partial(screen_jit, grid=grid), n, SCREEN_CHUNK, args,
-                   (lay.jtable, lay.templates, lay.hopper, lay.limits(grid)))
+                   (lay.jtable, lay.templates, lay.hopper, lay.limits(grid)), scaled=True)
 
 
 def instantiate(lay: Layout, args, grid, bar=None):
@@ -269,7 +278,7 @@ def instantiate(lay: Layout, args, grid, bar=None):
              ascent_sides(lay.jterrain, lay.hopper, lay.sides_step))
     return lay.map(partial(pairs_jit, grid=grid, rise=rise), n, PAIR_CHUNK, args,
                    (lay.jtable, lay.templates, lay.jterrain, lay.hopper, lay.limits(grid),
-                    sides), bar)
+                    sides), bar, scaled=True)
 
 
 def goal_policies(lay: Layout, goal, idx, chunk: int | None = GOAL_CHUNK):
@@ -293,7 +302,8 @@ def prepares_rows(lay: Layout, goals):
         return np.zeros((0, 3 * lay.nt), np.int64), np.zeros((0, 3 * lay.nt), bool)
     window = landing_window(goals, lay.templates, lay.jterrain, lay.hopper)
     return lay.map(partial(rows_jit, window=window), n, ROW_CHUNK, (goals,),
-                   (lay.jallowed, lay.jtable, lay.templates, lay.jterrain, lay.hopper))
+                   (lay.jallowed, lay.jtable, lay.templates, lay.jterrain, lay.hopper),
+                   scaled=True)
 
 
 def prepares_and_robustness(lay: Layout, goals, half_width):
@@ -303,7 +313,7 @@ def prepares_and_robustness(lay: Layout, goals, half_width):
         return np.zeros((0, 3 * lay.nt), np.int64), np.zeros((0, 3 * lay.nt), bool), np.ones(0)
     ids, inside, rob = lay.map(rows_robustness_jit, n, ROW_CHUNK, (goals,),
                                (lay.jallowed, lay.jtable, lay.templates, lay.jterrain,
-                                lay.hopper, jnp.full(3, float(half_width))))
+                                lay.hopper, jnp.full(3, float(half_width))), scaled=True)
     return ids, inside, np.array(rob, float)
 
 
@@ -311,7 +321,7 @@ def robustness(lay: Layout, goals, half_width) -> np.ndarray:
     """Safety sampling of each goal (`goal_robustness`)."""
     return np.asarray(lay.map(robustness_jit, goals.shape[0], ROW_CHUNK, (goals,),
                               (lay.jtable, lay.templates, lay.jterrain, lay.hopper,
-                               jnp.full(3, float(half_width)))), float)
+                               jnp.full(3, float(half_width))), scaled=True), float)
 
 
 def held(lay: Layout, points) -> np.ndarray:
