@@ -98,7 +98,7 @@ def table(header: list[str], rows: list[list[str]]) -> list[str]:
 def twin() -> list[str]:
     # Later files measure the current code; a benchmark they repeat shows only their row.
     files = ["cpu2-bench-2026-11.json", "cpu2-bench-slip-table-2026-11.json",
-             "cpu2-bench-twin-2026-11.json", "cpu2-bench-plan-2026-11.json"]
+             "cpu2-bench-twin-2026-11.json", "cpu2-bench-plan-2026-12.json"]
     data = [load(name) for name in files]
     out = ["### JAX against the NumPy twin (`run.py`)"]
     rows = []
