@@ -52,10 +52,10 @@ PROBE_HALF_WIDTH = 0.2
 PAIR_CHUNK = 1024
 SCREEN_CHUNK = 4 * PAIR_CHUNK
 ROW_CHUNK = 2048
-PROBE_CHUNK = 65536
+PROBE_CHUNK = 16384
 GOAL_CHUNK = 1024
-#: On a GPU or TPU the pair, screen and row chunks are this many times larger (a batch
-#: costs there about what its longest lane costs).
+#: On a GPU or TPU the pair, screen, row and probe chunks are this many times larger (a
+#: batch costs there about what its longest lane costs).
 ACCELERATOR_CHUNK_SCALE = 4
 
 
@@ -328,7 +328,8 @@ def held(lay: Layout, points) -> np.ndarray:
     """Whether an allowed situated domain holds each probe point."""
     window = landing_window(points, lay.templates, lay.jterrain, lay.hopper)
     return lay.map(partial(held_jit, window=window), points.shape[0], PROBE_CHUNK, (points,),
-                   (lay.jallowed, lay.jtable, lay.templates, lay.jterrain, lay.hopper))
+                   (lay.jallowed, lay.jtable, lay.templates, lay.jterrain, lay.hopper),
+                   scaled=True)
 
 
 def probe_offsets(half_width) -> np.ndarray:
