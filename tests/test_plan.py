@@ -223,3 +223,21 @@ def test_shipped_template_boxes_are_the_ones_computed_op_by_op():
             assert np.array_equal(read[0], boxes[0]) and np.array_equal(read[1], boxes[1])
     # Another hopper has other boxes, and is not among the shipped ones.
     assert box_key(templates_for("bhop"), jaxhop.Hopper(rho0=0.5)) not in shipped.files
+
+
+def test_plan_does_not_depend_on_chunk_sizes(plan, monkeypatch):
+    # Chunks of 48 pairs (192 screened) and 80 goals: the flat plan's stages run in many
+    # chunks, each last one padded by repeating its last item, where the default sizes
+    # hold each stage in one or two chunks. Every policy, goal, score, prepares edge and
+    # the deployment order must come out the same, bit for bit.
+    from jaxhop._planning import stages
+
+    monkeypatch.setattr(stages, "PAIR_CHUNK", 48)
+    monkeypatch.setattr(stages, "SCREEN_CHUNK", 192)
+    monkeypatch.setattr(stages, "ROW_CHUNK", 80)
+    small = build_plan(builtin_terrain("flat"), progress=False)
+    for name in ("situated", "target", "goals", "safety", "margin", "is_goal", "robustness",
+                 "order"):
+        np.testing.assert_array_equal(getattr(small, name), getattr(plan, name), err_msg=name)
+    assert (small.prepares != plan.prepares).nnz == 0
+    assert plan.stats["n_screened_pairs"] > 4 * 192 and plan.stats["n_instantiated"] > 4 * 80

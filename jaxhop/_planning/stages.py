@@ -54,8 +54,8 @@ SCREEN_CHUNK = 4 * PAIR_CHUNK
 ROW_CHUNK = 2048
 PROBE_CHUNK = 16384
 GOAL_CHUNK = 1024
-#: On a GPU or TPU the pair, screen, row and probe chunks are this many times larger (a
-#: batch costs there about what its longest lane costs).
+#: On a GPU or TPU every chunk is this many times larger (a batch costs there about what
+#: its longest lane costs).
 ACCELERATOR_CHUNK_SCALE = 4
 
 
@@ -234,11 +234,11 @@ class Layout:
         boxes = overlap(self.gf_world[rows, 1:], self.d_world[cols, 1:])
         return self.t_of[rows], self.s_of[rows], self.t_of[cols], self.s_of[cols], boxes
 
-    def map(self, fn, n, chunk, batched, consts=(), bar=None, scaled=False):
-        """`chunked_map` with this layout's chunk sizes, on `plan_devices()`. `scaled`:
-        `chunk` is a CPU's, `ACCELERATOR_CHUNK_SCALE` times larger on an accelerator."""
+    def map(self, fn, n, chunk, batched, consts=(), bar=None):
+        """`chunked_map` with this layout's chunk sizes, on `plan_devices()`: `chunk` is a
+        CPU's, `ACCELERATOR_CHUNK_SCALE` times larger on an accelerator."""
         devices = plan_devices()
-        if scaled and devices[0].platform != "cpu":
+        if devices[0].platform != "cpu":
             chunk *= ACCELERATOR_CHUNK_SCALE
         size, tail = chunk_sizes(chunk, n, self.chunking)
         return chunked_map(fn, n, size, batched, consts, tail=tail, bar=bar, devices=devices)
@@ -265,7 +265,7 @@ def screen(lay: Layout, args, grid) -> np.ndarray:
     if n == 0:
         return np.zeros(0, bool)
     return lay.map(partial(screen_jit, grid=grid), n, SCREEN_CHUNK, args,
-                   (lay.jtable, lay.templates, lay.hopper, lay.limits(grid)), scaled=True)
+                   (lay.jtable, lay.templates, lay.hopper, lay.limits(grid)))
 
 
 def instantiate(lay: Layout, args, grid, bar=None):
@@ -278,7 +278,7 @@ def instantiate(lay: Layout, args, grid, bar=None):
              ascent_sides(lay.jterrain, lay.hopper, lay.sides_step))
     return lay.map(partial(pairs_jit, grid=grid, rise=rise), n, PAIR_CHUNK, args,
                    (lay.jtable, lay.templates, lay.jterrain, lay.hopper, lay.limits(grid),
-                    sides), bar, scaled=True)
+                    sides), bar)
 
 
 def goal_policies(lay: Layout, goal, idx, chunk: int | None = GOAL_CHUNK):
@@ -302,8 +302,7 @@ def prepares_rows(lay: Layout, goals):
         return np.zeros((0, 3 * lay.nt), np.int64), np.zeros((0, 3 * lay.nt), bool)
     window = landing_window(goals, lay.templates, lay.jterrain, lay.hopper)
     return lay.map(partial(rows_jit, window=window), n, ROW_CHUNK, (goals,),
-                   (lay.jallowed, lay.jtable, lay.templates, lay.jterrain, lay.hopper),
-                   scaled=True)
+                   (lay.jallowed, lay.jtable, lay.templates, lay.jterrain, lay.hopper))
 
 
 def prepares_and_robustness(lay: Layout, goals, half_width):
@@ -313,7 +312,7 @@ def prepares_and_robustness(lay: Layout, goals, half_width):
         return np.zeros((0, 3 * lay.nt), np.int64), np.zeros((0, 3 * lay.nt), bool), np.ones(0)
     ids, inside, rob = lay.map(rows_robustness_jit, n, ROW_CHUNK, (goals,),
                                (lay.jallowed, lay.jtable, lay.templates, lay.jterrain,
-                                lay.hopper, jnp.full(3, float(half_width))), scaled=True)
+                                lay.hopper, jnp.full(3, float(half_width))))
     return ids, inside, np.array(rob, float)
 
 
@@ -321,15 +320,14 @@ def robustness(lay: Layout, goals, half_width) -> np.ndarray:
     """Safety sampling of each goal (`goal_robustness`)."""
     return np.asarray(lay.map(robustness_jit, goals.shape[0], ROW_CHUNK, (goals,),
                               (lay.jtable, lay.templates, lay.jterrain, lay.hopper,
-                               jnp.full(3, float(half_width))), scaled=True), float)
+                               jnp.full(3, float(half_width)))), float)
 
 
 def held(lay: Layout, points) -> np.ndarray:
     """Whether an allowed situated domain holds each probe point."""
     window = landing_window(points, lay.templates, lay.jterrain, lay.hopper)
     return lay.map(partial(held_jit, window=window), points.shape[0], PROBE_CHUNK, (points,),
-                   (lay.jallowed, lay.jtable, lay.templates, lay.jterrain, lay.hopper),
-                   scaled=True)
+                   (lay.jallowed, lay.jtable, lay.templates, lay.jterrain, lay.hopper))
 
 
 def probe_offsets(half_width) -> np.ndarray:
