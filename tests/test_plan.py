@@ -241,3 +241,32 @@ def test_plan_does_not_depend_on_chunk_sizes(plan, monkeypatch):
         np.testing.assert_array_equal(getattr(small, name), getattr(plan, name), err_msg=name)
     assert (small.prepares != plan.prepares).nnz == 0
     assert plan.stats["n_screened_pairs"] > 4 * 192 and plan.stats["n_instantiated"] > 4 * 80
+
+
+def test_candidate_pairs_are_every_overlapping_pair_in_order():
+    # Against the definition, every pair of boxes tested: 700 `Gf` boxes in segment order
+    # (chunks of 256 rows) and 500 domains, with edges on a 0.05 grid so that many boxes
+    # touch exactly (touching boxes overlap), some wide domains, and a domain with
+    # an infinite extent in ydot.
+    from jaxhop._planning.policies import candidate_pairs
+
+    rng = np.random.default_rng(3)
+
+    def boxes(n, y_width):
+        lo = np.sort(np.round(rng.uniform(0, 30, n) / 0.05) * 0.05)
+        w = np.round(rng.uniform(0.05, y_width, n) / 0.05) * 0.05
+        z = np.round(rng.uniform(1, 2, (n, 1)) / 0.05) * 0.05
+        v = np.round(rng.uniform(-2, 2, (n, 1)) / 0.05) * 0.05
+        return np.stack([np.stack([lo, lo + w], -1), np.concatenate([z, z + 0.3], 1),
+                         np.concatenate([v, v + 1.0], 1)], 1)
+
+    gf, d = boxes(700, 1.0), boxes(500, 3.0)
+    d = d[rng.permutation(500)]  # domains in any order
+    d[7, 2] = [-np.inf, np.inf]
+    rows, cols = candidate_pairs(gf, d)
+    every = np.all((gf[:, None, :, 0] <= d[None, :, :, 1])
+                   & (d[None, :, :, 0] <= gf[:, None, :, 1]), axis=2)
+    r, c = np.nonzero(every)
+    assert r.size > 1000
+    np.testing.assert_array_equal(rows, r)
+    np.testing.assert_array_equal(cols, c)

@@ -188,16 +188,36 @@ def template_boxes(templates: Templates, hopper: Hopper, n_grid: int = 2001):
     return jax.vmap(one)(jnp.arange(templates.n))
 
 
-def candidate_pairs(gf_world: np.ndarray, d_world: np.ndarray, chunk: int = 2048):
-    """Pairs `(i, j)` whose boxes of `Gf(i)` and `D(j)` overlap in `(y, z, ydot)`."""
-    rows, cols = [], []
+def candidate_pairs(gf_world: np.ndarray, d_world: np.ndarray, chunk: int = 256):
+    """Pairs `(i, j)` whose boxes of `Gf(i)` and `D(j)` overlap in `(y, z, ydot)`, sorted by
+    `(i, j)`.
+
+    Each chunk of `Gf` boxes is tested only against the domains whose `y` start lies
+    between the chunk's lowest `y` less the widest domain and its highest `y`: no other
+    domain can overlap any of its boxes in `y`. Situated policies come in segment order,
+    so a chunk covers a short stretch of the map (on a course map with 5 094 situated
+    policies: a few hundred domains per chunk instead of all of them).
+    """
+    n_d = d_world.shape[0]
+    if n_d == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    by_start = np.argsort(d_world[:, 0, 0], kind="stable")
+    starts = d_world[by_start, 0, 0]
+    # A hair wider than the widest domain: the window test must never lose a pair to the
+    # rounding of `start - widest`.
+    widest = float(np.max(d_world[:, 0, 1] - d_world[:, 0, 0])) * (1 + 1e-9) + 1e-9
+    rows, cols = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)]
     for start in range(0, gf_world.shape[0], chunk):
         g = gf_world[start:start + chunk]
-        overlap = np.all((g[:, None, :, 0] <= d_world[None, :, :, 1])
-                         & (d_world[None, :, :, 0] <= g[:, None, :, 1]), axis=2)
+        lo = np.searchsorted(starts, np.min(g[:, 0, 0]) - widest, side="left")
+        hi = np.searchsorted(starts, np.max(g[:, 0, 1]), side="right")
+        near = np.sort(by_start[lo:hi])
+        d = d_world[near]
+        overlap = np.all((g[:, None, :, 0] <= d[None, :, :, 1])
+                         & (d[None, :, :, 0] <= g[:, None, :, 1]), axis=2)
         r, c = np.nonzero(overlap)
         rows.append(r + start)
-        cols.append(c)
+        cols.append(near[c])
     return np.concatenate(rows), np.concatenate(cols)
 
 
