@@ -7,6 +7,7 @@ in `jaxhop._cli.args`.
 from __future__ import annotations
 
 import argparse
+import gc
 import json
 import os
 import sys
@@ -99,6 +100,20 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_parkour(sub)
     return parser
+
+
+def command() -> int:
+    """The `jaxhop` command (and `python -m jaxhop`): `main` on `sys.argv`, in a process
+    that ends with it.
+
+    Before the process exits, every object is moved out of reach of Python's cycle
+    collector (`gc.freeze`), whose last pass over the objects of JAX, diffrax and jaxhop
+    took 0.3 s of every command's wall time (2-core CPU); the operating system frees their
+    memory. Exit handlers still run and every file jaxhop writes is closed already.
+    """
+    code = main()
+    gc.freeze()
+    return code
 
 
 def main(argv=None) -> int:
