@@ -196,10 +196,10 @@ def candidate_pairs(gf_world: np.ndarray, d_world: np.ndarray, chunk: int = 256)
     between the chunk's lowest `y` less the widest domain and its highest `y`: no other
     domain can overlap any of its boxes in `y`. Situated policies come in segment order,
     so a chunk covers a short stretch of the map (on a course map with 5 094 situated
-    policies: a few hundred domains per chunk instead of all of them).
+    policies: a few hundred domains per chunk instead of all of them). No boxes on either
+    side: no pairs.
     """
-    n_d = d_world.shape[0]
-    if n_d == 0:
+    if d_world.shape[0] == 0:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
     by_start = np.argsort(d_world[:, 0, 0], kind="stable")
     starts = d_world[by_start, 0, 0]

@@ -162,10 +162,10 @@ class _Context(S.Layout, Reach):
             return idx[r], idx[c]
         a_rows = np.nonzero(allowed & row_aff)[0]
         cols_all = np.nonzero(allowed)[0]
-        r1, c1 = _overlaps(self.gf_world[a_rows], self.d_world[cols_all])
+        r1, c1 = candidate_pairs(self.gf_world[a_rows], self.d_world[cols_all])
         b_rows = np.nonzero(allowed & ~row_aff)[0]
         a_cols = np.nonzero(allowed & col_aff)[0]
-        r2, c2 = _overlaps(self.gf_world[b_rows], self.d_world[a_cols])
+        r2, c2 = candidate_pairs(self.gf_world[b_rows], self.d_world[a_cols])
         rows = np.concatenate([a_rows[r1], b_rows[r2]])
         cols = np.concatenate([cols_all[c1], a_cols[c2]])
         key = rows.astype(np.int64) * self.n_sit + cols
@@ -179,12 +179,6 @@ def build_shape(cmap: CourseMap, templates: Templates, hopper: Hopper) -> tuple[
     shape share the build's compiled programs."""
     ctx = _Context(cmap, templates, hopper)
     return ctx.jterrain.n_blocks, int(ctx.jtable.centre.shape[0])
-
-
-def _overlaps(gf, d):
-    if gf.shape[0] == 0 or d.shape[0] == 0:
-        return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    return candidate_pairs(gf, d)
 
 
 def _pairs_to_compute(ctx: _Context, up: Update | None):
