@@ -4,6 +4,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+import scipy.sparse as sp
 
 import jaxhop
 from jaxhop._control.decisions import first_match
@@ -270,3 +271,33 @@ def test_candidate_pairs_are_every_overlapping_pair_in_order():
     assert r.size > 1000
     np.testing.assert_array_equal(rows, r)
     np.testing.assert_array_equal(cols, c)
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_deploy_equals_the_twins_queue_on_random_graphs(seed):
+    # `deploy` computes the queue's order in bulk; the twin pops a heap of `(key, policy)`
+    # tuples one by one. Random graphs where the bulk shortcuts can go wrong: many policies
+    # per situated policy, goals sharing a situated policy with cheaper preparers, robustness
+    # in a few classes (a policy that joins later jumps ahead of queued ones), keys that
+    # tie exactly, policies never reached, and enough of them that the expansions are
+    # tried hundreds at a time.
+    from jaxhop import reference as R
+    from jaxhop._planning.deploy import PICKBEST, deploy
+
+    rng = np.random.default_rng(seed)
+    n_sit = int(rng.integers(5, 400))
+    n = int(rng.integers(1, 12)) * n_sit
+    situated = rng.integers(0, n_sit, n)
+    per_row = rng.integers(0, 4, n)
+    rows = np.repeat(np.arange(n), per_row)
+    cols = rng.integers(0, n_sit, rows.size)
+    p = sp.csr_matrix((np.ones(rows.size, bool), (rows, cols)), shape=(n, n_sit))
+    p.sum_duplicates()
+    is_goal = rng.random(n) < 3.0 / n
+    is_goal[rng.integers(n)] = True
+    safety = np.round(rng.random(n), int(rng.integers(1, 4)))
+    robustness = rng.integers(0, 4, n) / 3
+    for pick, key in PICKBEST.items():
+        order = deploy(p, situated, safety, is_goal, robustness, key)
+        assert np.array_equal(order, R.deploy(p, situated, safety, is_goal, robustness, key)), pick
+    assert check_order(order, p, situated, is_goal)

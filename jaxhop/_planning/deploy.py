@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import heapq
 from collections.abc import Callable
 
 import numpy as np
@@ -51,62 +50,159 @@ def deploy(
         safety: `(n,)` safety of each (eq 34).
         is_goal: `(n,)` which are goal policies.
         robustness: `(n,)` safety-sampling score of each goal (default: all 1).
-        pickbest: maps `(safety, depth, robustness)` to a priority key, smallest first.
-            `depth` is the number of strides to the goal along the backchain.
+        pickbest: maps `(safety, depth, robustness)` to a priority key, smallest first
+            (ties: the smaller policy index first). `depth` is the number of strides to
+            the goal along the backchain.
 
     Returns:
-        The deployed policies, in order.
-
-    The queue holds plain float keys, each once, and per key a heap of the policies that
-    have it: popping the smallest key's smallest policy is popping the smallest `(key,
-    policy)` pair, without comparing tuples (a parkour update redeploys 150 000 policies).
+        The deployed policies, in order: the order of that queue, computed in bulk
+        (`docs/planning.md`, "Deployment in bulk").
     """
     preparers = p.tocsc()
     indptr, indices = preparers.indptr, preparers.indices
-    n = situated.shape[0]
+    n, n_sit = situated.shape[0], p.shape[1]
     robustness = np.ones(n) if robustness is None else robustness
-    depth = np.full(n, np.iinfo(np.int64).max, dtype=np.int64)
-    queued = np.zeros(n, dtype=bool)
-    expanded = bytearray(p.shape[1])
-    sit = situated.tolist()
-    keys_heap: list[float] = []
-    ties: dict[float, list[int]] = {}
-
-    def push(keys, idx):
-        for key, a in zip(keys.tolist(), idx.tolist()):
-            bucket = ties.get(key)
-            if bucket is None:
-                ties[key] = [a]
-                heapq.heappush(keys_heap, key)
-            else:
-                heapq.heappush(bucket, a)
-
+    situated = np.asarray(situated, np.int64)
+    depth = np.zeros(n, np.int64)
+    joined = np.full(n, -1, np.int64)  # expansions before the policy joined the queue
+    key = np.zeros(n)
     goals = np.nonzero(is_goal)[0]
     depth[goals] = 1
-    keys = pickbest(safety, np.where(is_goal, 1, 0), robustness)
-    push(np.asarray(keys, float)[goals], goals)
-    queued[goals] = True
-    order = []
-    while keys_heap:
-        key = keys_heap[0]
-        bucket = ties[key]
-        b = heapq.heappop(bucket)
-        if not bucket:
-            heapq.heappop(keys_heap)
-            del ties[key]
-        order.append(b)
-        s = sit[b]
-        if expanded[s]:
-            continue
-        expanded[s] = 1
-        col = indices[indptr[s]:indptr[s + 1]]
-        new = col[~queued[col]]
-        if new.size == 0:
-            continue
-        queued[new] = True
-        depth[new] = depth[b] + 1
-        push(np.asarray(pickbest(safety[new], depth[new], robustness[new]), float), new)
-    return np.asarray(order, dtype=np.int64)
+    joined[goals] = 0
+    key[goals] = np.asarray(pickbest(safety, np.where(is_goal, 1, 0), robustness), float)[goals]
+    front = _Front(n, n_sit)
+    front.offer(key[goals], goals, situated[goals])
+    expanding = []  # the policies that expand their situated policy, in order
+    n_expanded, width = 0, _FIRST_WIDTH
+    while True:
+        # The next `width` expansions, were nothing that joins on the way to jump ahead.
+        t_s, t_k, t_i = front.smallest(width)
+        if t_s.size == 0:
+            break
+        w = t_s.size
+        child, owner = _preparers(indptr, indices, t_s)
+        fresh = joined[child] < 0
+        child, owner = front.first_owner(child[fresh], owner[fresh])
+        d = depth[t_i][owner] + 1
+        kc = np.asarray(pickbest(safety[child], d, robustness[child]), float)
+        sc = situated[child]
+        # A policy that joins after expansion `o` may jump ahead of expansion `j > o` if
+        # its situated policy is unexpanded and its key is not larger: the expansions stop
+        # before the first such `j` (on a tie, or where expansions before `j` expand that
+        # policy's situated policy, they stop early, which only costs a round).
+        open_ = ~front.expanded[sc]
+        cut = w
+        if open_.any():
+            ahead = np.searchsorted(t_k, kc[open_], "left")
+            cut = int(min(np.maximum(ahead, owner[open_] + 1).min(), w))
+        m = owner < cut
+        child, kc, sc = child[m], kc[m], sc[m]
+        joined[child] = n_expanded + owner[m] + 1
+        depth[child] = d[m]
+        key[child] = kc
+        front.expand(t_s[:cut])
+        expanding.append(t_i[:cut])
+        n_expanded += cut
+        live = ~front.expanded[sc]
+        front.offer(kc[live], child[live], sc[live])
+        width = min(2 * width, _MAX_WIDTH) if cut == w else max(_FIRST_WIDTH, 2 * cut)
+    return _merge(np.concatenate(expanding) if expanding else np.zeros(0, np.int64),
+                  joined, key)
+
+
+#: Expansions tried at once: the first, the most (doubled while none is cut short).
+_FIRST_WIDTH, _MAX_WIDTH = 16, 4096
+_NONE = np.iinfo(np.int64).max
+
+
+class _Front:
+    """Per situated policy not yet expanded, the smallest `(key, index)` of its queued
+    policies: the one that will expand it (any other is popped after it, with nothing left
+    to expand)."""
+
+    def __init__(self, n: int, n_sit: int):
+        self.expanded = np.zeros(n_sit, bool)
+        self.key = np.full(n_sit, np.inf)
+        self.index = np.full(n_sit, _NONE, np.int64)
+        self._claim = np.full(n, _NONE, np.int64)
+
+    def offer(self, keys, idx, sit):
+        old = self.key[sit]
+        np.minimum.at(self.key, sit, keys)
+        now = self.key[sit]
+        self.index[sit[now < old]] = _NONE
+        tie = keys == now
+        np.minimum.at(self.index, sit[tie], idx[tie])
+
+    def smallest(self, width: int):
+        """The `width` smallest fronts, sorted: situated policies, keys, indices."""
+        pool = np.nonzero(self.index < _NONE)[0]
+        k, i = self.key[pool], self.index[pool]
+        if pool.size > width:
+            pick = np.argpartition(k, width - 1)[:width]
+            pick = np.nonzero(k <= k[pick].max())[0]  # every key tied at the edge
+        else:
+            pick = np.arange(pool.size)
+        pick = pick[np.lexsort((i[pick], k[pick]))][:width]
+        return pool[pick], k[pick], i[pick]
+
+    def expand(self, sit):
+        self.expanded[sit] = True
+        self.key[sit], self.index[sit] = np.inf, _NONE
+
+    def first_owner(self, child, owner):
+        """Each child once, with the first expansion that reaches it."""
+        np.minimum.at(self._claim, child, owner)
+        first = self._claim[child] == owner
+        self._claim[child] = _NONE
+        return child[first], owner[first]
+
+
+def _preparers(indptr, indices, cols):
+    """The rows of the CSC columns `cols`, and the position in `cols` of each."""
+    starts = indptr[cols]
+    lens = indptr[cols + 1] - starts
+    owner = np.repeat(np.arange(cols.size), lens)
+    offset = np.arange(owner.size) - np.repeat(np.cumsum(lens) - lens, lens)
+    return indices[starts[owner] + offset], owner
+
+
+def _merge(expanding, joined, key):
+    """The queue's whole order from its expansions.
+
+    A policy that joined the queue after expansion `t` leaves it just before the first
+    later expansion whose `(key, index)` is larger than its own (or at the end), and the
+    policies that leave between two expansions leave in `(key, index)` order.
+    """
+    queued = np.nonzero(joined >= 0)[0]
+    by_key = queued[np.argsort(key[queued], kind="stable")]
+    rank = np.empty(joined.size, np.int64)
+    rank[by_key] = np.arange(by_key.size)
+    m = expanding.size
+    bound = np.concatenate([[-1], rank[expanding], [by_key.size]])
+    r, t = rank[by_key], joined[by_key] + 1
+    # Where the running maximum of the expansions' ranks first exceeds a rank after the
+    # policy joined, that expansion is the answer; the rest search a table of maxima.
+    before = np.maximum(np.searchsorted(np.maximum.accumulate(bound), r, "right"), t)
+    hard = np.nonzero(before == t)[0]
+    hard = hard[bound[t[hard]] <= r[hard]]
+    if hard.size:
+        levels = [bound]  # levels[k][j] = max(bound[j : j + 2**k])
+        while (1 << len(levels)) <= bound.size:
+            prev, h = levels[-1], 1 << (len(levels) - 1)
+            nxt = prev.copy()
+            nxt[:-h] = np.maximum(prev[:-h], prev[h:])
+            levels.append(nxt)
+        pos, rh = t[hard], r[hard]
+        for k in range(len(levels) - 1, -1, -1):
+            ok = pos + (1 << k) <= m + 1
+            ok &= levels[k][np.minimum(pos, m + 1)] <= rh
+            pos = np.where(ok, pos + (1 << k), pos)
+        before[hard] = pos
+    before[rank[expanding]] = np.arange(1, m + 1)
+    if m + 1 < 1 << 16:
+        before = before.astype(np.uint16)  # a radix sort
+    return by_key[np.argsort(before, kind="stable")]
 
 
 def check_order(order: np.ndarray, p: sp.csr_matrix, situated: np.ndarray,
