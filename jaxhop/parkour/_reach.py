@@ -171,12 +171,18 @@ class Reach:
         v_lo, v_hi = goals[:, 2] - hw[2], goals[:, 2] + hw[2]
         t_end = np.sqrt(2.0 * np.maximum(z_hi - rho0 - self.floor, 0.0) / g)
         k = self.lead_time
+        # The whole fall (`t_H` = 0) first: its `y` range holds every block's, and most
+        # descents meet no changed block at all.
+        wide = np.stack([v_lo * k, v_lo * (t_end + k), v_hi * k, v_hi * (t_end + k)])
+        wide_lo, wide_hi = y_lo + wide.min(0), y_hi + wide.max(0)
         out = np.zeros(goals.shape[0], bool)
         for s, e, height in blocks:
-            t_h = np.minimum(np.sqrt(2.0 * np.maximum(z_lo - rho0 - height, 0.0) / g), t_end)
-            c = np.stack([v_lo * (t_h + k), v_lo * (t_end + k), v_hi * (t_h + k),
-                          v_hi * (t_end + k)])
-            out |= (y_lo + c.min(0) <= e + _PAD) & (y_hi + c.max(0) >= s - _PAD)
+            i = np.nonzero((wide_lo <= e + _PAD) & (wide_hi >= s - _PAD))[0]
+            t_h = np.minimum(np.sqrt(2.0 * np.maximum(z_lo[i] - rho0 - height, 0.0) / g),
+                             t_end[i])
+            c = np.stack([v_lo[i] * (t_h + k), v_lo[i] * (t_end[i] + k), v_hi[i] * (t_h + k),
+                          v_hi[i] * (t_end[i] + k)])
+            out[i] |= (y_lo[i] + c.min(0) <= e + _PAD) & (y_hi[i] + c.max(0) >= s - _PAD)
         return out
 
 
