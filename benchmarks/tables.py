@@ -294,7 +294,7 @@ def parkour_slip_capture() -> list[str]:
 
 
 def updates() -> list[str]:
-    name = "cpu2-parkour-update-2026-11.json"
+    name = "cpu2-parkour-update-2026-12.json"
     data = load(name)
     rows, all_upd, all_cpu, equal = [], [], [], []
     wall_r, cpu_r, est_wall, est_cpu = [], [], [], []
