@@ -153,7 +153,7 @@ def robustness_bhop() -> list[str]:
 
 
 def robustness_slip() -> list[str]:
-    name = "cpu2-robustness-slip-2026-11.json"
+    name = "cpu2-robustness-slip-2026-12.json"
     data = load(name)
     meta = data["meta"]
     runs = [r for r in data["runs"] if r.get("grid_step") == 0.2]
@@ -180,8 +180,10 @@ def robustness_slip() -> list[str]:
             for noise in ("none", "wind", "ground")]
     return [f"### Robustness, SLIP on a 0.2 m grid (`results/{name}`)",
             f"`reference`, {meta['device']}, jax {meta['jax']}, {load_of(meta)}, the "
-            "multi-start deadbeat, a plan without the direction rule; seed 0 unless listed. "
-            "Full-grid SLIP sweeps: `docs/results.md`.", ""] + table(
+            "command line's SLIP controller and plan (table-start deadbeat, direction rule); "
+            "seed 0 unless listed; `ground` with the same initial apexes for both "
+            "controllers in the SLIP domain. Full-grid SLIP sweeps: `docs/results.md`.",
+            ""] + table(
         ["noise", "adaptive, SLIP domain", "paper's controller, SLIP domain",
          "paper's controller, global domain"], rows)
 
