@@ -72,18 +72,21 @@ def chunked_map(fn, n: int, size: int, batched, consts=(), *, tail: int | None =
 
 
 def pad_to(x, n: int, fill) -> jnp.ndarray:
-    """`x` padded along its first axis to `n` rows with copies of `fill` (a row or scalar)."""
-    x = jnp.asarray(x)
+    """`x` padded along its first axis to `n` rows with copies of `fill` (a row or scalar).
+
+    Padded on the host and copied to the device once: as JAX operations the padding would
+    compile anew for every new length (on a course, at every snapshot that changes it)."""
+    x = np.asarray(x)
     k = n - x.shape[0]
     if k < 0:
         raise ValueError(f"pad_to: {x.shape[0]} rows do not fit in {n}")
-    row = jnp.broadcast_to(jnp.asarray(fill, x.dtype), (k,) + x.shape[1:])
-    return jnp.concatenate([x, row])
+    row = np.broadcast_to(np.asarray(fill, x.dtype), (k,) + x.shape[1:])
+    return jnp.asarray(np.concatenate([x, row]))
 
 
 def pad_terrain(t: Terrain, n: int) -> Terrain:
     """`t` with `n` blocks: zero-length blocks at its far end, at its last height."""
-    end, h = t.ends[-1], t.heights[-1]
+    end, h = np.asarray(t.ends)[-1], np.asarray(t.heights)[-1]
     return Terrain(pad_to(t.starts, n, end), pad_to(t.ends, n, end),
                    pad_to(t.heights, n, h), t.name, None)
 

@@ -309,7 +309,7 @@ def segments(terrain: Terrain, seg_length: float = SEGMENT_LENGTH) -> Segments:
             blocks.append(b)
             edges.append(min(y - s, e - y))
     return Segments(jnp.asarray(np.reshape(centres, (-1, 2)), float),
-                    jnp.asarray(blocks, jnp.int32), jnp.asarray(edges, float))
+                    jnp.asarray(np.asarray(blocks, np.int32)), jnp.asarray(edges, float))
 
 
 def random_terrain(

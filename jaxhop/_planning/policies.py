@@ -137,7 +137,7 @@ def landing_window(points, templates: Templates, terrain: Terrain, hopper: Hoppe
     starts, ends = np.asarray(terrain.starts), np.asarray(terrain.ends)
     g, rho0 = float(hopper.g), float(hopper.rho0)
     y, z, ydot = pts[:, 0], pts[:, 1], pts[:, 2]
-    fy = y + np.asarray(foot_lead(jnp.asarray(ydot), templates))
+    fy = y + np.asarray(foot_lead(ydot, templates))  # on the host: no JAX op per batch size
     fall = z - rho0 - (float(np.min(np.asarray(terrain.heights))) - rho0)
     if np.any(fall < 1e-9) or not np.all(np.isfinite(pts)):
         return None

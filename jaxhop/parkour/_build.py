@@ -147,7 +147,7 @@ class _Context(S.Layout, Reach):
         self.jtable = SituatedTable(
             pad_to(t.centre, ns, [1e6, 0.0]), pad_to(t.seg_block, ns, terrain.n_blocks - 1),
             pad_to(t.edge_distance, ns, 0.0), pad_to(t.block_first, nb, self.n_seg),
-            pad_to(t.block_count, nb, 0), pad_to(t.block_left, nb, terrain.ends[-1]))
+            pad_to(t.block_count, nb, 0), pad_to(t.block_left, nb, np.asarray(terrain.ends)[-1]))
         self.jallowed = pad_to(self.sit_allowed, ns * self.nt, False)
 
     def candidate_pairs(self, row_aff=None, col_aff=None):
