@@ -449,6 +449,44 @@ def test_a_slip_run_in_a_headwind_captures_the_goal_at_rest(reference_slip_plan)
 
 
 @pytest.mark.slow
+def test_a_slip_nearly_at_rest_in_a_headwind_still_hops_forward(reference_slip_plan):
+    # mppc-hw-dynamic-3 under wind, on the leg (rho0 0.19 m, g 8.0665), here in the
+    # reference hopper's Froude units: from an apex nearly at rest the plan's next goal lies
+    # 0.1 leg lengths ahead, moving forward. The windless table's start, polished in the
+    # headwind, ended beyond the stride's reversal: the stride flew back at -0.41 m/s here
+    # (-0.28 m/s on the leg, 18 tolerances from the goal and outside every domain: 12 of 12
+    # runs ended there). Started from the stride's windless equivalent (`windless_equivalent`) the
+    # deadbeat stays on the forward side and misses the goal in the wind about as much as
+    # the same deadbeat misses it without wind (3.4 tolerances on the leg: this goal is out
+    # of one stride's reach either way).
+    from jaxhop._control.decisions import SLIP_ACCEPT
+    from jaxhop._core.params import disturbance_for
+    from jaxhop._models.slip.stride import STRIDE_TOL
+    from jaxhop.parkour import leg_hopper
+
+    leg = leg_hopper()
+    length = HOPPER.rho0 / leg.rho0
+    speed = math.sqrt(HOPPER.g * HOPPER.rho0 / (leg.g * leg.rho0))
+    to_ref = np.array([length, length, speed])
+    y0 = 8.7  # on the reference terrain's last block, 8.5-10 m at height 0
+    apex = jnp.asarray(np.array([0.0, 0.4895, 0.0545]) * to_ref + [y0, 0.0, 0.0])
+    goal = jnp.asarray(np.array([0.0986348, 0.488388, 0.12351932]) * to_ref + [y0, 0.0, 0.0])
+    tables = reference_slip_plan.tables(slip=True)
+    deadbeat, stride = _premise_programs()
+    scale = np.asarray(SLIP_ACCEPT)
+
+    def miss(wind):
+        u, _ = deadbeat(apex, goal, 0.0, tables.slip, tables.terrain, wind)
+        nxt, code, _ = stride(apex, u, tables.terrain, wind, STRIDE_TOL)
+        assert int(code) == 0
+        return np.asarray(nxt), float(np.max(np.abs(np.asarray(nxt - goal)) / scale))
+
+    _, calm = miss(0.0)
+    nxt, windy = miss(disturbance_for("wind").wind)
+    assert nxt[2] > 0.0 and windy <= 1.5 * calm, (nxt, windy, calm)
+
+
+@pytest.mark.slow
 def test_a_slip_under_speed_noise_alone_reaches_the_goal(reference_slip_plan):
     # Sensor noise on ydot alone leaves y and z exact, and the apex filter fuses them with
     # full trust. With the prediction believed to 1e-5 m, the SLIP apex map's linearisation

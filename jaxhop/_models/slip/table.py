@@ -206,6 +206,21 @@ def table_slice(table: SlipTable, apex, goal, h, hopper: Hopper):
     return jnp.einsum("abc,abcijk->ijk", w, cube)
 
 
+def windless_equivalent(apex, goal, h, hopper: Hopper, wind):
+    """The apex and goal of the windless stride whose stance is that of the stride from
+    `apex` to `goal` in a flight acceleration `wind`, for the table's start: the apex
+    moving at the touchdown speed, `a t_d` faster, and `a t_d^2 / 2` behind, the goal
+    moving at the liftoff speed, `a t_u` slower, and `a t_u^2 / 2` behind (`t_d`, `t_u`:
+    the falls from the apex and to the goal over a leg at rest length standing on `h`).
+    In a headwind the windless table's start for the real apex lies beyond the stride's
+    reversal, and the polish cannot come back from there (docs/slip.md, "Deadbeat")."""
+    fall = lambda z: jnp.sqrt(jnp.maximum(2.0 * (z - h - hopper.rho0) / hopper.g, 0.0))  # noqa: E731
+    t_d, t_u = fall(apex[1]), fall(goal[1])
+    seen = jnp.stack([apex[0] - 0.5 * wind * t_d**2, apex[1], apex[2] + wind * t_d])
+    aim = jnp.stack([goal[0] - 0.5 * wind * t_u**2, goal[1], goal[2] - wind * t_u])
+    return seen, aim
+
+
 def _target(apex, goal, hopper: Hopper):
     """The stride's target in the table's units: `((y* - y) / rho0, ydot* / sqrt(g rho0))`."""
     return jnp.stack([(goal[0] - apex[0]) / hopper.rho0,
@@ -280,8 +295,10 @@ def table_starts(table: SlipTable, apex, goal, h, hopper: Hopper, n_starts: int,
     from ..flight import OK, touchdown
 
     g = table.grid
-    plane = table_slice(table, apex, goal, h, hopper)
-    target = _target(apex, goal, hopper)
+    seen, aim = (apex, goal) if wind is None else windless_equivalent(apex, goal, h, hopper,
+                                                                        wind)
+    plane = table_slice(table, seen, aim, h, hopper)
+    target = _target(seen, aim, hopper)
     scale = jnp.stack([hopper.rho0, jnp.sqrt(hopper.g * hopper.rho0)])
     err = (plane - target) * scale
     cost = W_POS * err[..., 0] ** 2 + W_VEL * err[..., 1] ** 2
