@@ -273,26 +273,26 @@ def parkour_slip() -> list[str]:
         f"{won} of {sum(r['runs'] for r in multi)} runs reach the goal."]
 
 
-def parkour_slip_capture() -> list[str]:
-    name = "cpu2-parkour-slip-leg-capture-2026-11.json"
+def parkour_slip_now() -> list[str]:
+    name = "cpu2-parkour-slip-leg-2026-12.json"
     data = load(name)
-    wind = [r for r in data["rows"] if r["noise"] == "wind"]
-    wind.sort(key=lambda r: -r["success_rate"])
-    rows = [[r["course"], f"**{rate(r['success_rate'], 2)}**", failures(r["failures"])]
-            for r in wind]
-    rows.append(["**mean of the nine**",
-                 f"**{rate(sum(r['success_rate'] for r in wind) / len(wind), 2)}**", ""])
-    sensor = [r for r in data["rows"] if r["noise"] == "sensor"]
-    lines = ["### SLIP on the parkour courses, the controller as it is",
-             f"`results/{name}`: `{data['command']}`, {data['controller']}; "
-             f"{data['device']}; {data['recorded']}. Wind:", ""] + table(
-        ["course", "success", "failures"], rows)
-    for r in sensor:
-        lines += ["", f"Sensor noise on {r['course']}: {r['finished']} of {r['runs']} runs "
-                  f"finish ({rate(r['success_rate'], 2)}; {failures(r['failures'])}; "
-                  f"{r['mean_jumps']} jumps on average). The other courses' sensor and landing "
-                  "columns are those of the table above (apex filter alone)."]
-    return lines
+    noises = NOISES
+    by = {(r["course"], r["noise"]): r for r in data["rows"]}
+    rows = []
+    for course in COURSES:
+        rows.append([course] + [
+            f"{rate(by[course, n]['success_rate'], 2)} ({failures(by[course, n]['failures'])}; "
+            f"{by[course, n]['mean_jumps']:.1f} strides)" if by[course, n]["mean_jumps"] else
+            f"{rate(by[course, n]['success_rate'], 2)} ({failures(by[course, n]['failures'])})"
+            for n in noises])
+    rows.append(["**mean of the nine**"] + [
+        f"**{rate(sum(by[c, n]['success_rate'] for c in COURSES) / len(COURSES), 2)}**"
+        for n in noises])
+    return ["### SLIP on the parkour courses, the controller as it is",
+            f"`results/{name}`: `{data['command']}`, {data['controller']}; "
+            f"{data['device']}; {data['recorded']}. Success (failures; strides, mean of the "
+            "finished runs).",
+            ""] + table(["course"] + noises, rows)
 
 
 def updates() -> list[str]:
@@ -441,7 +441,7 @@ def explorers() -> list[str]:
 
 
 PAGES = {README: [twin, robustness_bhop, robustness_slip, gpu, goals, explorers],
-         PARKOUR: [parkour_bhop, parkour_slip, parkour_slip_capture, updates]}
+         PARKOUR: [parkour_bhop, parkour_slip, parkour_slip_now, updates]}
 
 
 def render(sections) -> str:
