@@ -276,23 +276,21 @@ def parkour_slip() -> list[str]:
 def parkour_slip_now() -> list[str]:
     name = "cpu2-parkour-slip-leg-2026-12.json"
     data = load(name)
-    noises = NOISES
     by = {(r["course"], r["noise"]): r for r in data["rows"]}
-    rows = []
-    for course in COURSES:
-        rows.append([course] + [
-            f"{rate(by[course, n]['success_rate'], 2)} ({failures(by[course, n]['failures'])}; "
-            f"{by[course, n]['mean_jumps']:.1f} strides)" if by[course, n]["mean_jumps"] else
-            f"{rate(by[course, n]['success_rate'], 2)} ({failures(by[course, n]['failures'])})"
-            for n in noises])
+
+    def cell(r):
+        strides = f"; {r['mean_jumps']:.1f} strides" if r["mean_jumps"] else ""
+        return f"{rate(r['success_rate'], 2)} ({failures(r['failures'])}{strides})"
+
+    rows = [[course] + [cell(by[course, n]) for n in NOISES] for course in COURSES]
     rows.append(["**mean of the nine**"] + [
         f"**{rate(sum(by[c, n]['success_rate'] for c in COURSES) / len(COURSES), 2)}**"
-        for n in noises])
+        for n in NOISES])
     return ["### SLIP on the parkour courses, the controller as it is",
             f"`results/{name}`: `{data['command']}`, {data['controller']}; "
             f"{data['device']}; {data['recorded']}. Success (failures; strides, mean of the "
             "finished runs).",
-            ""] + table(["course"] + noises, rows)
+            ""] + table(["course"] + NOISES, rows)
 
 
 def updates() -> list[str]:

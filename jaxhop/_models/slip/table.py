@@ -38,6 +38,7 @@ from ..._core.params import Hopper
 from ..._core.paths import atomic_write, cache_dir, file_lock
 from ..._core.programs import jit
 from ..._core.version import VERSION
+from ..bhop import safe_sqrt
 from .kernels import (
     KAPPA_HI,
     KAPPA_LO,
@@ -214,8 +215,7 @@ def windless_equivalent(apex, goal, h, hopper: Hopper, wind):
     the falls from the apex and to the goal over a leg at rest length standing on `h`).
     In a headwind the windless table's start for the real apex lies beyond the stride's
     reversal, and the polish cannot come back from there (docs/slip.md, "Deadbeat")."""
-    fall = lambda z: jnp.sqrt(jnp.maximum(2.0 * (z - h - hopper.rho0) / hopper.g, 0.0))  # noqa: E731
-    t_d, t_u = fall(apex[1]), fall(goal[1])
+    t_d, t_u = (safe_sqrt(2.0 * (z - h - hopper.rho0) / hopper.g) for z in (apex[1], goal[1]))
     seen = jnp.stack([apex[0] - 0.5 * wind * t_d**2, apex[1], apex[2] + wind * t_d])
     aim = jnp.stack([goal[0] - 0.5 * wind * t_u**2, goal[1], goal[2] - wind * t_u])
     return seen, aim
