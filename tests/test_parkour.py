@@ -413,6 +413,37 @@ def test_update_dependency_tests_are_sufficient(align, model):
         assert set(ids1[a][in1[a]]) == set(old_to_new[ids0[a][in0[a]]])
 
 
+@pytest.mark.slow
+@pytest.mark.parametrize("model", ["bhop", "slip"])
+def test_side_windows_leave_out_only_blocks_that_never_bind(model, monkeypatch):
+    # A pair's collision clauses test only the higher blocks whose bounds can reach the
+    # regions of the policies on its blocks (`Layout.side_windows`). On the shipped course
+    # with the most blocks, screened pairs get the same goals and margins, bit for bit, as
+    # from every higher block of the map (the clauses' definition), with shorter lists.
+    from jaxhop._planning import stages as S
+    from jaxhop._planning.policies import ascent_sides, descent_sides
+    from jaxhop.parkour import _build as B
+
+    course, hop = load_course("mppc-hw-two-rounds"), leg_hopper()
+    ctx = B._Context(course_map(course, course.environment, hop),
+                     leg_templates(hop, model=model), hop)
+    down, up = ctx.side_windows()
+    t, step = ctx.jterrain, ctx.sides_step
+    assert descent_sides(t, step, down).shape[2] < descent_sides(t, step).shape[2]
+    assert ascent_sides(t, hop, step, up).shape[2] < ascent_sides(t, hop, step).shape[2]
+    rows, cols = ctx.candidate_pairs()
+    args = ctx.pair_args(rows, cols)
+    screened = np.nonzero(S.screen(ctx, args, GRID))[0]
+    pick = np.random.default_rng(0).choice(screened, 2048, replace=False)
+    args = tuple(a[pick] for a in args)
+    windowed = S.instantiate(ctx, args, GRID)
+    monkeypatch.setattr(B._Context, "side_windows", lambda self: (None, None))
+    every = S.instantiate(ctx, args, GRID)
+    assert windowed[0].sum() > 100
+    for a, b in zip(windowed, every):
+        np.testing.assert_array_equal(a, b)
+
+
 @pytest.fixture(scope="module", params=[False, True], ids=["centred", "aligned"])
 def tall_plans(request):
     maps, hop, tm = _tall_maps(request.param)

@@ -252,25 +252,41 @@ def _side_lists(higher, starts, ends, step: int) -> np.ndarray:
     return out.astype(np.int32)
 
 
-def descent_sides(terrain: Terrain, step: int = 4) -> np.ndarray:
+def _within(window, starts, ends):
+    """`[b, c]`: whether block `c` reaches `window[b]`: its right end `>= window[b, 0]` for
+    a block left of `b`, its left end `<= window[b, 1]` otherwise (no window: all)."""
+    if window is None:
+        return True
+    lo, hi = window[:, :1], window[:, 1:]
+    return np.where(ends[None, :] <= starts[:, None], ends[None, :] >= lo,
+                    starts[None, :] <= hi)
+
+
+def descent_sides(terrain: Terrain, step: int = 4, window=None) -> np.ndarray:
     """`(n_blocks, 2, K)`: for each landing block, the blocks that can bind its descent
     bounds: the higher ones on its left, then those on its right (`descent_y_bounds`), each
     padded with the landing block itself (never higher than itself). `K` is a multiple of
-    `step`, so that maps that differ a little share one shape."""
+    `step`, so that maps that differ a little share one shape.
+
+    `window`: `(n_blocks, 2)`, for each landing block a `y` interval outside which no
+    block's bound can bind (`Layout.side_windows`); the higher blocks whose near end lies
+    outside it are left out."""
     heights, starts, ends = (np.asarray(x) for x in (terrain.heights, terrain.starts,
                                                      terrain.ends))
-    return _side_lists(heights[None, :] > heights[:, None], starts, ends, step)
+    higher = (heights[None, :] > heights[:, None]) & _within(window, starts, ends)
+    return _side_lists(higher, starts, ends, step)
 
 
-def ascent_sides(terrain: Terrain, hopper: Hopper, step: int = 4) -> np.ndarray:
+def ascent_sides(terrain: Terrain, hopper: Hopper, step: int = 4, window=None) -> np.ndarray:
     """`(n_blocks, 2, K)`: for each take-off block, the blocks that can bind its rise
     (`ascent_y_bounds`): those standing more than `rho0` above it, on its left, then on its
     right, padded with the take-off block itself (never that far above itself). The test
-    keeps 1e-9 m of slack, so the lists hold every block the kernel's own test admits."""
+    keeps 1e-9 m of slack, so the lists hold every block the kernel's own test admits.
+    `window`: as in `descent_sides`, per take-off block."""
     heights, starts, ends = (np.asarray(x) for x in (terrain.heights, terrain.starts,
                                                      terrain.ends))
     rise = heights[None, :] - (heights[:, None] + float(hopper.rho0))
-    return _side_lists(rise > -1e-9, starts, ends, step)
+    return _side_lists((rise > -1e-9) & _within(window, starts, ends), starts, ends, step)
 
 
 def descent_y_bounds(ydot, z, block, terrain: Terrain, hopper: Hopper, lead=0.0, t_h=None,

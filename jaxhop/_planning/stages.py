@@ -38,6 +38,7 @@ from .policies import (
     tall,
     template_boxes,
 )
+from .regions import foot_lead
 from .templates import Templates
 
 #: Weights of the edge distance (cubed) and of the goal margin in the safety of eq 34.
@@ -229,6 +230,40 @@ class Layout:
                                             grid=grid)
         return self._limits[grid]
 
+    def side_windows(self):
+        """`(descent, ascent)`: `(n_blocks, 2)` per block of `jterrain`, the `y` interval
+        outside which no other block binds a collision clause of `pair_goal` for a pair that
+        lands (descent) or takes off (ascent) there (`descent_sides`, `ascent_sides`).
+
+        A higher block `c` left of the landing block binds the descent only through
+        `e_c - ydot t_H - lead` (`ydot > 0`), at most `e_c + max|lead|`, and only where that
+        exceeds the cell's own domain bound `d_lo` (`dom_lo = max(d_lo, c_lo)`), which
+        lies in the domain boxes of the block's situated policies; mirrored on the right.
+        On the rise a block left of the take-off block enters as `e_c + ydot t_up -
+        min(ydot, 0) t_h <= e_c + max|ydot| max t_up` against the goal bound `g_lo` in the
+        `Gf` boxes. Leaving out a term that never exceeds the other side of a `max` (`min`)
+        changes no result, bit for bit (a test compares every course's pairs with and
+        without). The boxes are widened by `rho0` besides, far more than their corner
+        sampling can miss by (`template_boxes`).
+        """
+        n = self.jterrain.n_blocks
+        block = np.asarray(self.table.seg_block)[self.s_of]
+        rho0, g = float(self.hopper.rho0), float(self.hopper.g)
+        v_lo = min(self.d_rel[:, 2, 0].min(), self.gf_rel[:, 2, 0].min())
+        v_hi = max(self.d_rel[:, 2, 1].max(), self.gf_rel[:, 2, 1].max())
+        lead = float(np.max(np.abs(np.asarray(
+            foot_lead(np.linspace(v_lo, v_hi, 2001), self.templates)))))
+        t_up = np.sqrt(2.0 * max(float(self.gf_rel[:, 1, 1].max()), 0.0) / g)
+        rise = float(np.abs(self.gf_rel[:, 2, :]).max()) * t_up
+
+        def window(boxes, pad):
+            lo, hi = np.full(n, np.inf), np.full(n, -np.inf)
+            np.minimum.at(lo, block, boxes[:, 0, 0])
+            np.maximum.at(hi, block, boxes[:, 0, 1])
+            return np.stack([lo - pad, hi + pad], 1)
+
+        return window(self.d_world, rho0 + lead), window(self.gf_world, rho0 + rise)
+
     def pair_args(self, rows, cols):
         """`(ti, si, tj, sj, boxes)` of pairs `(rows, cols)`; `boxes`: their overlap in z, ydot."""
         boxes = overlap(self.gf_world[rows, 1:], self.d_world[cols, 1:])
@@ -274,8 +309,9 @@ def instantiate(lay: Layout, args, grid, bar=None):
     if n == 0:
         return np.zeros(0, bool), np.zeros((0, 3)), np.zeros(0), np.zeros(0)
     rise = tall(lay.jterrain, lay.hopper)
-    sides = (descent_sides(lay.jterrain, lay.sides_step),
-             ascent_sides(lay.jterrain, lay.hopper, lay.sides_step))
+    descent, ascent = lay.side_windows()
+    sides = (descent_sides(lay.jterrain, lay.sides_step, descent),
+             ascent_sides(lay.jterrain, lay.hopper, lay.sides_step, ascent))
     return lay.map(partial(pairs_jit, grid=grid, rise=rise), n, PAIR_CHUNK, args,
                    (lay.jtable, lay.templates, lay.jterrain, lay.hopper, lay.limits(grid),
                     sides), bar)

@@ -346,21 +346,27 @@ def _probes_held(ctx: _Context, up: Update | None, goals, is_goal, from_old):
     offsets = S.probe_offsets(ctx.probe)
     n_probe = offsets.shape[0]
     held = np.ones((goals.shape[0], n_probe), bool)
-    redo = np.ones((goals.shape[0], n_probe), bool)
-    redo[is_goal] = False
+    # The policies with probes to compute (ascending) and which of their probes.
+    rows = np.nonzero(~is_goal)[0]
+    mask = np.ones((rows.size, n_probe), bool)
     if up is not None and up.previous.probe_held is not None:
         cand = np.nonzero(from_old >= 0)[0]
         held[cand] = up.previous.probe_held[from_old[cand]]
-        redo[cand] = False
         # The box test (the hull of all 27 probes' paths) first: cheap, and most kept goals
         # are far from any change; then each probe of the goals it cannot clear.
         near = cand[ctx.touched(goals[cand], up.landing, ctx.probe)]
         pts = (goals[near, None, :] + offsets[None]).reshape(-1, 3)
-        redo[near] = ctx.touched(pts, up.landing).reshape(near.size, n_probe)
-    pol, prb = np.nonzero(redo)
+        new = np.nonzero((from_old < 0) & ~is_goal)[0]
+        rows = np.concatenate([new, near])
+        mask = np.concatenate([np.ones((new.size, n_probe), bool),
+                               ctx.touched(pts, up.landing).reshape(near.size, n_probe)])
+        srt = np.argsort(rows, kind="stable")
+        rows, mask = rows[srt], mask[srt]
+    r, prb = np.nonzero(mask)
+    pol = rows[r]
     if pol.size:
         held[pol, prb] = S.held(ctx, goals[pol] + offsets[prb])
-    return held, int(redo.any(axis=1).sum()), int(pol.size)
+    return held, int(mask.any(axis=1).sum()), int(pol.size)
 
 
 def _update_stats(ctx: _Context, up: Update | None, counts: dict, n_rows: int, n_pol: int,
