@@ -169,7 +169,7 @@ class _Context(S.Layout, Reach):
         rows = np.concatenate([a_rows[r1], b_rows[r2]])
         cols = np.concatenate([cols_all[c1], a_cols[c2]])
         key = rows.astype(np.int64) * self.n_sit + cols
-        srt = np.argsort(key)
+        srt = np.argsort(key, kind="stable")  # two sorted runs: a merge
         return rows[srt], cols[srt]
 
 
