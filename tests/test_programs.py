@@ -192,3 +192,38 @@ def test_importing_jaxhop_caches_small_programs_only_in_its_own_cache(tmp_path):
     assert out["user dir"][0] == str(tmp_path / "user")
     assert out["user dir"][1] == 1.0  # JAX's own default, untouched
     assert out["user minimum"] == (str(tmp_path / "own" / "xla"), 2.5)
+
+
+def test_a_plan_stage_runs_from_its_saved_program_in_a_new_process(fresh, tmp_path,
+                                                                   monkeypatch):
+    # The stages of a plan (here screening) are saved programs too: a new process loads
+    # each shape's program instead of tracing it, and it computes what `jax.jit` does.
+    from jaxhop._core.params import Hopper
+    from jaxhop._core.terrain import builtin_terrain, segments
+    from jaxhop._planning import stages as S
+    from jaxhop._planning.policies import PairGrid
+    from jaxhop._planning.templates import paper_templates
+
+    traces = []
+    screen = S._screen
+
+    def counted(*args, **kw):
+        traces.append(1)  # runs only while tracing
+        return screen(*args, **kw)
+
+    monkeypatch.setattr(S, "_screen", counted)
+    terrain, tm, hop, grid = builtin_terrain("flat"), paper_templates(), Hopper(), PairGrid(4, 4)
+    lay = S.Layout(terrain, segments(terrain, tm.seg_length), tm, hop)
+    rows, cols = np.nonzero(np.ones((40, 40), bool))
+    args = lay.pair_args(rows * 7, cols * 7)
+    first = S.screen(lay, args, grid)
+    assert len(traces) == 1
+    assert [p.name.split("-")[1] for p in (tmp_path / "programs").iterdir()] == ["screen"]
+    fresh()  # as a new process: nothing loaded
+    again = S.screen(lay, args, grid)
+    assert len(traces) == 1  # loaded from disk, not traced
+    plain = jax.jit(screen, static_argnames=("grid",))(
+        *(jnp.asarray(a) for a in args), lay.jtable, tm, hop, lay.limits(grid), grid=grid)
+    assert first.any() and not first.all()
+    np.testing.assert_array_equal(again, first)
+    np.testing.assert_array_equal(again, np.asarray(plain))

@@ -84,6 +84,7 @@ def _source_hash() -> str:
     return h.hexdigest()
 
 
+@functools.cache
 def _version(lib: str) -> str:
     try:
         return metadata.version(lib)

@@ -20,7 +20,7 @@ import numpy as np
 
 from .._core.batching import chunked_map
 from .._core.params import Hopper
-from .._core.programs import jit, stored_array
+from .._core.programs import jit, stored_array, stored_program
 from .._core.terrain import Terrain
 from .policies import (
     PROBE_CENTRE,
@@ -111,13 +111,23 @@ def _held(points, allowed, table, templates, terrain, hopper, window=None):
     return jax.vmap(held)(points)
 
 
-screen_jit = jit(_screen, static_argnames=("grid",))
-pairs_jit = jit(_pairs, static_argnames=("grid", "rise"))
-rows_jit = jit(_rows, static_argnames=("window",))
-rows_robustness_jit = jit(_rows_and_robustness)
-goal_jit = jit(_goal_policies)
-robustness_jit = jit(_robustness)
-held_jit = jit(_held, static_argnames=("window",))
+def stored(name: str, fn, **static):
+    """`fn` with its `static` keyword arguments bound, compiled as a saved program
+    (`jaxhop._core.programs.stored_program`, one per argument shapes): a fresh process
+    loads each traced program from disk instead of tracing it again. The first updates of
+    a course in a process traced every stage anew for an update's smaller chunks and
+    windows (1.1-2.5 s against 0.1-0.3 s once traced; `docs/parkour_reactive.md`).
+    `fn` returns one array or a tuple of several."""
+    bound = partial(fn, **static)
+    tag = "plan-" + name + "".join(f"-{k}={v}" for k, v in sorted(static.items()))
+
+    def call(*args):
+        out = stored_program(tag, bound, args)(*jax.tree_util.tree_leaves(args))
+        return out[0] if len(out) == 1 else tuple(out)
+
+    return call
+
+
 limits_jit = jit(pair_limits, static_argnames=("grid",))
 
 
@@ -299,7 +309,7 @@ def screen(lay: Layout, args, grid) -> np.ndarray:
     n = args[0].shape[0]
     if n == 0:
         return np.zeros(0, bool)
-    return lay.map(partial(screen_jit, grid=grid), n, SCREEN_CHUNK, args,
+    return lay.map(stored("screen", _screen, grid=grid), n, SCREEN_CHUNK, args,
                    (lay.jtable, lay.templates, lay.hopper, lay.limits(grid)))
 
 
@@ -312,7 +322,7 @@ def instantiate(lay: Layout, args, grid, bar=None):
     descent, ascent = lay.side_windows()
     sides = (descent_sides(lay.jterrain, lay.sides_step, descent),
              ascent_sides(lay.jterrain, lay.hopper, lay.sides_step, ascent))
-    return lay.map(partial(pairs_jit, grid=grid, rise=rise), n, PAIR_CHUNK, args,
+    return lay.map(stored("pairs", _pairs, grid=grid, rise=rise), n, PAIR_CHUNK, args,
                    (lay.jtable, lay.templates, lay.jterrain, lay.hopper, lay.limits(grid),
                     sides), bar)
 
@@ -324,11 +334,10 @@ def goal_policies(lay: Layout, goal, idx, chunk: int | None = GOAL_CHUNK):
     """
     consts = (lay.jtable, lay.templates, lay.jterrain, lay.hopper)
     goal = jnp.asarray(goal)
+    fn = stored("goals", _goal_policies)
     if chunk is None:
-        return tuple(np.asarray(x) for x in goal_jit(goal, lay.t_of[idx], lay.s_of[idx],
-                                                     *consts))
-    return lay.map(partial(goal_jit, goal), idx.size, chunk, (lay.t_of[idx], lay.s_of[idx]),
-                   consts)
+        return tuple(np.asarray(x) for x in fn(goal, lay.t_of[idx], lay.s_of[idx], *consts))
+    return lay.map(partial(fn, goal), idx.size, chunk, (lay.t_of[idx], lay.s_of[idx]), consts)
 
 
 def prepares_rows(lay: Layout, goals):
@@ -337,7 +346,7 @@ def prepares_rows(lay: Layout, goals):
     if n == 0:
         return np.zeros((0, 3 * lay.nt), np.int64), np.zeros((0, 3 * lay.nt), bool)
     window = landing_window(goals, lay.templates, lay.jterrain, lay.hopper)
-    return lay.map(partial(rows_jit, window=window), n, ROW_CHUNK, (goals,),
+    return lay.map(stored("rows", _rows, window=window), n, ROW_CHUNK, (goals,),
                    (lay.jallowed, lay.jtable, lay.templates, lay.jterrain, lay.hopper))
 
 
@@ -346,7 +355,8 @@ def prepares_and_robustness(lay: Layout, goals, half_width):
     n = goals.shape[0]
     if n == 0:
         return np.zeros((0, 3 * lay.nt), np.int64), np.zeros((0, 3 * lay.nt), bool), np.ones(0)
-    ids, inside, rob = lay.map(rows_robustness_jit, n, ROW_CHUNK, (goals,),
+    fn = stored("rows-robustness", _rows_and_robustness)
+    ids, inside, rob = lay.map(fn, n, ROW_CHUNK, (goals,),
                                (lay.jallowed, lay.jtable, lay.templates, lay.jterrain,
                                 lay.hopper, jnp.full(3, float(half_width))))
     return ids, inside, np.array(rob, float)
@@ -354,7 +364,8 @@ def prepares_and_robustness(lay: Layout, goals, half_width):
 
 def robustness(lay: Layout, goals, half_width) -> np.ndarray:
     """Safety sampling of each goal (`goal_robustness`)."""
-    return np.asarray(lay.map(robustness_jit, goals.shape[0], ROW_CHUNK, (goals,),
+    fn = stored("robustness", _robustness)
+    return np.asarray(lay.map(fn, goals.shape[0], ROW_CHUNK, (goals,),
                               (lay.jtable, lay.templates, lay.jterrain, lay.hopper,
                                jnp.full(3, float(half_width)))), float)
 
@@ -362,7 +373,7 @@ def robustness(lay: Layout, goals, half_width) -> np.ndarray:
 def held(lay: Layout, points) -> np.ndarray:
     """Whether an allowed situated domain holds each probe point."""
     window = landing_window(points, lay.templates, lay.jterrain, lay.hopper)
-    return lay.map(partial(held_jit, window=window), points.shape[0], PROBE_CHUNK, (points,),
+    return lay.map(stored("held", _held, window=window), points.shape[0], PROBE_CHUNK, (points,),
                    (lay.jallowed, lay.jtable, lay.templates, lay.jterrain, lay.hopper))
 
 
