@@ -6,7 +6,10 @@ decision with its nested diffrax solves) that is about a minute of Python on eve
 (60-65 s traced and 6 s lowered on the 2-core CPU, jax 0.10.2). The
 pool step is therefore exported once (`jax.export`, StableHLO) and saved beside JAX's
 compilation cache, in `<compilation cache dir>/jaxhop-programs`; a later process loads it
-in milliseconds, and JAX's cache then supplies the compiled executable.
+in milliseconds, and JAX's cache then supplies the compiled executable. The plan's stages
+(`jaxhop._planning.stages.stored`) are saved the same way, one program per chunk shape:
+a course's first updates in a process otherwise traced each stage for their smaller
+chunks (docs/parkour_reactive.md, "Updates against the leg's flight").
 
 A saved program is named by a SHA-256 of everything it was traced from: jaxhop's source
 files, the versions of JAX and the libraries traced into it, the backend, and the
