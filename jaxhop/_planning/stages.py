@@ -252,24 +252,25 @@ class Layout:
         On the rise a block left of the take-off block enters as `e_c + ydot t_up -
         min(ydot, 0) t_h <= e_c + max|ydot| max t_up` against the goal bound `g_lo` in the
         `Gf` boxes. Leaving out a term that never exceeds the other side of a `max` (`min`)
-        changes no result, bit for bit (a test compares every course's pairs with and
+        changes no result, bit for bit (a test compares a course's pairs with and
         without). The boxes are widened by `rho0` besides, far more than their corner
         sampling can miss by (`template_boxes`).
         """
         n = self.jterrain.n_blocks
         block = np.asarray(self.table.seg_block)[self.s_of]
         rho0, g = float(self.hopper.rho0), float(self.hopper.g)
-        v_lo = min(self.d_rel[:, 2, 0].min(), self.gf_rel[:, 2, 0].min())
-        v_hi = max(self.d_rel[:, 2, 1].max(), self.gf_rel[:, 2, 1].max())
-        lead = float(np.max(np.abs(np.asarray(
+        v_lo = np.nanmin([self.d_rel[:, 2, 0], self.gf_rel[:, 2, 0]])
+        v_hi = np.nanmax([self.d_rel[:, 2, 1], self.gf_rel[:, 2, 1]])
+        lead = float(np.nanmax(np.abs(np.asarray(
             foot_lead(np.linspace(v_lo, v_hi, 2001), self.templates)))))
-        t_up = np.sqrt(2.0 * max(float(self.gf_rel[:, 1, 1].max()), 0.0) / g)
-        rise = float(np.abs(self.gf_rel[:, 2, :]).max()) * t_up
+        t_up = np.sqrt(2.0 * max(float(np.nanmax(self.gf_rel[:, 1, 1])), 0.0) / g)
+        rise = float(np.nanmax(np.abs(self.gf_rel[:, 2, :]))) * t_up
 
         def window(boxes, pad):
+            # NaN boxes (a template without a region) pair with nothing: left out.
             lo, hi = np.full(n, np.inf), np.full(n, -np.inf)
-            np.minimum.at(lo, block, boxes[:, 0, 0])
-            np.maximum.at(hi, block, boxes[:, 0, 1])
+            np.fmin.at(lo, block, boxes[:, 0, 0])
+            np.fmax.at(hi, block, boxes[:, 0, 1])
             return np.stack([lo - pad, hi + pad], 1)
 
         return window(self.d_world, rho0 + lead), window(self.gf_world, rho0 + rise)
