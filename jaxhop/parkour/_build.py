@@ -341,17 +341,20 @@ def _probes_held(ctx: _Context, up: Update | None, goals, is_goal, from_old):
     result if its descent meets no change (`touched`).
 
     Returns:
-        `(held, policies computed, probes computed)`.
+        `(held, robustness, policies computed, probes computed)`: `robustness` is the
+        fraction of probes held (goal policies: 1), kept where no probe was redone.
     """
     offsets = S.probe_offsets(ctx.probe)
     n_probe = offsets.shape[0]
     held = np.ones((goals.shape[0], n_probe), bool)
+    robustness = np.ones(goals.shape[0])
     # The policies with probes to compute (ascending) and which of their probes.
     rows = np.nonzero(~is_goal)[0]
     mask = np.ones((rows.size, n_probe), bool)
     if up is not None and up.previous.probe_held is not None:
         cand = np.nonzero(from_old >= 0)[0]
         held[cand] = up.previous.probe_held[from_old[cand]]
+        robustness[cand] = up.previous.plan.robustness[from_old[cand]]
         # The box test (the hull of all 27 probes' paths) first: cheap, and most kept goals
         # are far from any change; then each probe of the goals it cannot clear.
         near = cand[ctx.touched(goals[cand], up.landing, ctx.probe)]
@@ -366,7 +369,8 @@ def _probes_held(ctx: _Context, up: Update | None, goals, is_goal, from_old):
     pol = rows[r]
     if pol.size:
         held[pol, prb] = S.held(ctx, goals[pol] + offsets[prb])
-    return held, int(mask.any(axis=1).sum()), int(pol.size)
+    robustness[rows] = held[rows].sum(axis=1) / n_probe
+    return held, robustness, int(mask.any(axis=1).sum()), int(pol.size)
 
 
 def _update_stats(ctx: _Context, up: Update | None, counts: dict, n_rows: int, n_pol: int,
@@ -429,8 +433,7 @@ def build_course_plan(cmap: CourseMap, templates: Templates, hopper: Hopper, *,
     pair_inst = np.full(pairs.key.size, -1, np.int64)
     pair_inst[inst] = inst_index[n_goal:]
     safety = S.safety(ctx, sit, dg)
-    held, n_pol, n_probes = _probes_held(ctx, up, goals, is_goal, from_old)
-    robustness = held.sum(axis=1) / held.shape[1]
+    held, robustness, n_pol, n_probes = _probes_held(ctx, up, goals, is_goal, from_old)
     robustness[is_goal] = 1.0
     laps("safety_sampling")
     order = deploy(p, sit, safety, is_goal, robustness, pickbest)

@@ -173,17 +173,27 @@ class Reach:
         k = self.lead_time
         # The whole fall (`t_H` = 0) first: its `y` range holds every block's, and most
         # descents meet no changed block at all.
-        wide = np.stack([v_lo * k, v_lo * (t_end + k), v_hi * k, v_hi * (t_end + k)])
-        wide_lo, wide_hi = y_lo + wide.min(0), y_hi + wide.max(0)
+        wide_lo, wide_hi = y_lo + _least(v_lo, v_hi, k, t_end + k), y_hi + _most(
+            v_lo, v_hi, k, t_end + k)
         out = np.zeros(goals.shape[0], bool)
         for s, e, height in blocks:
             i = np.nonzero((wide_lo <= e + _PAD) & (wide_hi >= s - _PAD))[0]
             t_h = np.minimum(np.sqrt(2.0 * np.maximum(z_lo[i] - rho0 - height, 0.0) / g),
                              t_end[i])
-            c = np.stack([v_lo[i] * (t_h + k), v_lo[i] * (t_end[i] + k), v_hi[i] * (t_h + k),
-                          v_hi[i] * (t_end[i] + k)])
-            out[i] |= (y_lo[i] + c.min(0) <= e + _PAD) & (y_hi[i] + c.max(0) >= s - _PAD)
+            args = (v_lo[i], v_hi[i], t_h + k, t_end[i] + k)
+            out[i] |= ((y_lo[i] + _least(*args) <= e + _PAD)
+                       & (y_hi[i] + _most(*args) >= s - _PAD))
         return out
+
+
+def _least(v_lo, v_hi, t0, t1):
+    """The smallest of `v t` over `v` in `(v_lo, v_hi)` and `t` in `(t0, t1)`."""
+    return np.minimum(np.minimum(v_lo * t0, v_lo * t1), np.minimum(v_hi * t0, v_hi * t1))
+
+
+def _most(v_lo, v_hi, t0, t1):
+    """The largest of `v t` over `v` in `(v_lo, v_hi)` and `t` in `(t0, t1)`."""
+    return np.maximum(np.maximum(v_lo * t0, v_lo * t1), np.maximum(v_hi * t0, v_hi * t1))
 
 
 
