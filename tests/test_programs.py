@@ -220,7 +220,6 @@ def test_a_plan_stage_runs_from_its_saved_program_in_a_new_process(fresh, tmp_pa
     assert len(traces) == 1
     assert [p.name.split("-")[1] for p in (tmp_path / "programs").iterdir()] == ["screen"]
     fresh()  # as a new process: nothing loaded
-    monkeypatch.setattr(S, "_STORED", {})
     again = S.screen(lay, args, grid)
     assert len(traces) == 1  # loaded from disk, not traced
     plain = jax.jit(screen, static_argnames=("grid",))(

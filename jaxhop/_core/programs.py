@@ -107,6 +107,9 @@ def program_key(name: str, leaves, treedef) -> str:
 
 
 _LOADED = {}  # this process's programs, by key: one jit (and its compilations) each
+# Each key by what it depends on that varies within a process (the name, the arguments'
+# structure and avals): hashing the sources, versions and avals again costs ~0.2 ms a call.
+_KEYS = {}
 
 
 def _folder() -> str | None:
@@ -136,12 +139,14 @@ def stored_program(name: str, fn, args: tuple, log=None):
     `log`: where a problem with the saved file is reported (default: a warning).
     """
     leaves, treedef = jax.tree_util.tree_flatten(args)
-
-    def flat(*lv):
-        return jax.tree_util.tree_leaves(fn(*jax.tree_util.tree_unflatten(treedef, lv)))
-
-    key = program_key(name, leaves, treedef)
+    seen = (name, treedef, jax.config.jax_enable_x64, tuple(map(_typeof, leaves)))
+    if seen not in _KEYS:
+        _KEYS[seen] = program_key(name, leaves, treedef)
+    key = _KEYS[seen]
     if key not in _LOADED:
+        def flat(*lv):
+            return jax.tree_util.tree_leaves(fn(*jax.tree_util.tree_unflatten(treedef, lv)))
+
         _LOADED[key] = _load_or_export(name, key, flat, leaves, log)
     return _LOADED[key]
 

@@ -122,22 +122,10 @@ def stored(name: str, fn, **static):
     tag = "plan-" + name + "".join(f"-{k}={v}" for k, v in sorted(static.items()))
 
     def call(*args):
-        leaves, treedef = jax.tree_util.tree_flatten(args)
-        sig = (tag, treedef, tuple((np.shape(x), getattr(x, "dtype", type(x)), _weak(x))
-                                   for x in leaves))
-        if sig not in _STORED:  # `stored_program`'s key, computed once per shapes
-            _STORED[sig] = stored_program(tag, bound, args)
-        out = _STORED[sig](*leaves)
+        out = stored_program(tag, bound, args)(*jax.tree_util.tree_leaves(args))
         return out[0] if len(out) == 1 else tuple(out)
 
     return call
-
-
-_STORED: dict = {}
-
-
-def _weak(x) -> bool:
-    return bool(getattr(x, "weak_type", isinstance(x, (bool, int, float, complex))))
 
 
 limits_jit = jit(pair_limits, static_argnames=("grid",))
