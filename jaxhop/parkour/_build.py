@@ -434,7 +434,6 @@ def build_course_plan(cmap: CourseMap, templates: Templates, hopper: Hopper, *,
     pair_inst[inst] = inst_index[n_goal:]
     safety = S.safety(ctx, sit, dg)
     held, robustness, n_pol, n_probes = _probes_held(ctx, up, goals, is_goal, from_old)
-    robustness[is_goal] = 1.0
     laps("safety_sampling")
     order = deploy(p, sit, safety, is_goal, robustness, pickbest)
     laps("deploy")
